@@ -1,0 +1,78 @@
+"""A report folder for a set of transfer runs: learning curves (PNG), a results table
+(Markdown + JSON) and the configs that produced them."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pved.analysis.curves import Curve, load_curve, mean_ci, plot_curves
+from pved.errors import PvedError
+from pved.runs import atomic_write_bytes, atomic_write_json, run_path
+
+
+def transfer_report(
+    pair: str,
+    methods: list[str],
+    seeds: list[int],
+    runs_root: Path,
+    out: Path,
+    *,
+    metric: str = "success_rate",
+    title: str | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``out/`` with ``curves_<metric>.png``, ``curves_return.png``, ``results.md``,
+    ``results.json`` and ``configs/<method>-seed<k>.json``; return ``out``."""
+    rows: list[dict[str, Any]] = []
+    curves: dict[str, list[Curve]] = {metric: [], "return_mean": []}
+    (out / "configs").mkdir(parents=True, exist_ok=True)
+    for method in methods:
+        dirs = [run_path(runs_root, pair, "transfer", method, s) for s in seeds]
+        results = []
+        for d, s in zip(dirs, seeds, strict=True):
+            if not (d / "result.json").exists():
+                raise PvedError(f"transfer run {d} has no result.json (not finished)")
+            results.append(json.loads((d / "result.json").read_text()))
+            shutil.copyfile(d / "config.json", out / "configs" / f"{method}-seed{s}.json")
+        for key in curves:
+            curves[key].append(load_curve(method, dirs, seeds, f"eval/{key}"))
+        final = np.array([r[f"final/{metric}"] for r in results], dtype=np.float64)
+        final_ret = np.array([r["final/return_mean"] for r in results], dtype=np.float64)
+        auc = curves[metric][-1].values.mean(1)  # mean over the curve's points, per seed
+        m, ci = mean_ci(final)
+        a, aci = mean_ci(auc)
+        r, rci = mean_ci(final_ret)
+        rows.append({"method": method, "seeds": seeds, f"final_{metric}": final.tolist(),
+                     "final_mean": m, "final_ci95": ci, "curve_mean": a, "curve_ci95": aci,
+                     "final_return_mean": r, "final_return_ci95": rci,
+                     "steps": int(results[0]["steps"])})
+    plot_curves(curves[metric], out / f"curves_{metric}.png", metric.replace("_", " "),
+                title or f"{pair}: target agent on the target task")
+    plot_curves(curves["return_mean"], out / "curves_return.png", "return (env reward)",
+                title or f"{pair}: target agent on the target task")
+    lines = [
+        f"# {title or pair}",
+        "",
+        f"Final {metric} is measured on fresh episodes after training; 'curve mean' is the "
+        "mean of the evaluation points along training (a sample-efficiency summary). "
+        "± is the 95% t-interval over seeds.",
+        "",
+        f"| method | seeds | env steps | final {metric} | curve mean | final return |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['method']} | {len(row['seeds'])} | {row['steps']} | "
+            f"{row['final_mean']:.3f} ± {row['final_ci95']:.3f} | "
+            f"{row['curve_mean']:.3f} ± {row['curve_ci95']:.3f} | "
+            f"{row['final_return_mean']:.2f} ± {row['final_return_ci95']:.2f} |"
+        )
+    atomic_write_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
+    atomic_write_json(out / "results.json", {"pair": pair, "metric": metric, "rows": rows,
+                                             **(extra or {})})
+    return out

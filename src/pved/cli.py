@@ -1,0 +1,207 @@
+"""``pved <verb>``: thin command-line layer over :mod:`pved.experiments.stages`.
+
+Every verb calls the Python function of the same name with the same arguments. Bad
+input (an unknown name, mismatched dims, a corrupt file, NaN in training) prints one
+line ``pved: error: ...`` and exits with status 2; results are only ever written
+atomically, so nothing half-written is left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def _print_json(obj: Any) -> None:
+    from pved.runs import to_jsonable
+
+    print(json.dumps(to_jsonable(obj), indent=2))
+
+
+def _cmd_list(args: argparse.Namespace) -> None:
+    from pved.config import PRESETS
+    from pved.envs.registry import registered_env_ids
+    from pved.models import MODELS
+
+    print("pairs:  " + ", ".join(sorted(PRESETS)))
+    print("models: " + ", ".join(sorted(MODELS)) + ", ppo (no transfer)")
+    print("envs:   " + ", ".join(registered_env_ids()))
+
+
+def _cmd_train_policy(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import train_policy
+
+    path = train_policy(args.agent, args.task, seed=args.seed, steps=args.steps,
+                        reward=args.reward, runs_root=args.runs)
+    print(path)
+
+
+def _cmd_collect_pairs(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import collect_pairs
+
+    print(collect_pairs(args.pair, source_policy=args.source_policy,
+                        target_policy=args.target_policy, episodes=args.episodes,
+                        seed=args.seed, align=args.align, runs_root=args.runs))
+
+
+def _cmd_train_model(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import train_model
+
+    print(train_model(args.pair, args.model, dataset=args.dataset, seed=args.seed,
+                      epochs=args.epochs, runs_root=args.runs))
+
+
+def _cmd_build_bank(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import build_bank
+
+    print(build_bank(args.pair, source_policy=args.source_policy, episodes=args.episodes,
+                     seed=args.seed, runs_root=args.runs))
+
+
+def _cmd_transfer(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import transfer
+
+    _print_json(transfer(args.pair, args.model, seed=args.seed, model_path=args.model_path,
+                         bank_path=args.bank, steps=args.steps, beta=args.beta,
+                         eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                         final_eval_episodes=args.final_eval_episodes, runs_root=args.runs))
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import evaluate
+
+    _print_json(evaluate(args.policy, args.env, episodes=args.episodes, seed=args.seed,
+                         reward=args.reward))
+
+
+def _cmd_report(args: argparse.Namespace) -> None:
+    from pved.analysis.report import transfer_report
+
+    print(transfer_report(args.pair, args.methods, args.seeds, args.runs, args.out))
+
+
+def _cmd_demo(args: argparse.Namespace) -> None:
+    import dataclasses
+
+    from pved.experiments.demo import DemoConfig, run_demo
+
+    cfg = DemoConfig()
+    if args.steps is not None:
+        cfg = dataclasses.replace(cfg, transfer_steps=args.steps)
+    if args.seeds is not None:
+        cfg = dataclasses.replace(cfg, seeds=tuple(args.seeds))
+    if args.jobs is not None:
+        cfg = dataclasses.replace(cfg, jobs=args.jobs)
+    out = run_demo(args.runs, args.out, cfg)
+    print((out / "results.md").read_text())
+    print(f"report: {out.resolve()}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``pved`` argument parser (sub-commands)."""
+    parser = argparse.ArgumentParser(prog="pved", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="verb", required=True)
+
+    def add(name: str, help_text: str, runs_default: str = "runs") -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.add_argument("--runs", type=Path, default=Path(runs_default),
+                       help="root of the run directories (default: %(default)s)")
+        return p
+
+    p = sub.add_parser("list", help="list the pairs, models and environments")
+    p.set_defaults(func=_cmd_list)
+
+    p = add("train-policy", "PPO for any agent on any task, with a seed")
+    p.add_argument("--agent", required=True)
+    p.add_argument("--task", required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=int, help="env steps (default: the preset's)")
+    p.add_argument("--reward", help="env reward variant, e.g. full")
+    p.set_defaults(func=_cmd_train_policy)
+
+    p = add("collect-pairs", "paired rollouts of both agents on the training task")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--source-policy", type=Path, help="default: the shipped pretrained one")
+    p.add_argument("--target-policy", type=Path, help="default: the shipped pretrained one")
+    p.add_argument("--episodes", type=int)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--align", help="subsample (paper IV.A)")
+    p.set_defaults(func=_cmd_collect_pairs)
+
+    p = add("train-model", "fit PVED (or a variant) on a paired dataset")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--model", default="pved")
+    p.add_argument("--dataset", type=Path, help="default: the pair's collect-pairs output")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int)
+    p.set_defaults(func=_cmd_train_model)
+
+    p = add("build-bank", "roll out the source's target-task policy for the shaping term")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--source-policy", type=Path, help="default: the shipped pretrained one")
+    p.add_argument("--episodes", type=int)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_build_bank)
+
+    p = add("transfer", "PPO of the target agent with the Eq. 10 shaping (or --model ppo)")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--model", default="pved", help="a model name, or ppo for no transfer")
+    p.add_argument("--seed", type=int, default=20000)
+    p.add_argument("--model-path", type=Path)
+    p.add_argument("--bank", type=Path)
+    p.add_argument("--steps", type=int)
+    p.add_argument("--beta", type=float)
+    p.add_argument("--eval-every", type=int)
+    p.add_argument("--eval-episodes", type=int)
+    p.add_argument("--final-eval-episodes", type=int)
+    p.set_defaults(func=_cmd_transfer)
+
+    p = sub.add_parser("evaluate", help="success rate / return of a saved policy")
+    p.add_argument("--policy", type=Path, required=True)
+    p.add_argument("--env", required=True)
+    p.add_argument("--episodes", type=int, default=500)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--reward")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = add("report", "learning curves and a results table for transfer runs")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--methods", nargs="+", default=["pved", "ppo"])
+    p.add_argument("--seeds", nargs="+", type=int, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.set_defaults(func=_cmd_report)
+
+    p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
+    p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))
+    p.add_argument("--steps", type=int, help="transfer env steps per run")
+    p.add_argument("--seeds", nargs="+", type=int)
+    p.add_argument("--jobs", type=int)
+    p.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``pved`` console script."""
+    args = build_parser().parse_args(argv)
+    import torch
+
+    from pved.errors import PvedError
+
+    torch.set_num_threads(1)
+    try:
+        args.func(args)
+    except PvedError as exc:
+        print(f"pved: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("pved: interrupted (completed stages and checkpoints are kept)", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""Typed configs: one preset per agent pair, holding the paper's Table 1 values.
+
+A preset composes the configs of every stage (policies, pairing, model, transfer,
+evaluation) so that ``pved <verb> --pair reacher`` needs no other argument. Stage
+configs are frozen dataclasses; overriding a field is ``dataclasses.replace``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from pved.errors import PvedError
+from pved.models.pved import PVEDConfig
+from pved.rl.ppo import PPOConfig
+
+# Seeds of the paper's protocol (IV.A): tuning and evaluation seeds of the DRL stage.
+TUNING_SEEDS: tuple[int, ...] = (2000, 4000, 6000, 8000, 10000)
+EVALUATION_SEEDS: tuple[int, ...] = (20000, 40000, 60000, 80000, 100000)
+
+
+@dataclass(frozen=True)
+class PairingConfig:
+    """How paired trajectories are collected on the training task (paper IV.A)."""
+
+    episodes: int = 1000
+    num_envs: int = 16
+    align: str = "subsample"
+    deterministic: bool = True  # the policies' mean actions: the control they learned
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class TransferConfig:
+    """PPO of the target agent on the target task with the Eq. 10 shaping term."""
+
+    beta: float = 0.1
+    bank_episodes: int = 200  # source rollouts on the target task to draw (s_S, a_S) from
+    eval_every: int = 50_000  # env steps between evaluations (learning curve)
+    eval_episodes: int = 100  # per evaluation point during training
+    final_eval_episodes: int = 500  # the paper's success-rate measure
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+
+
+@dataclass(frozen=True)
+class PairPreset:
+    """Everything that defines one agent pair's experiment."""
+
+    name: str
+    source_agent: str
+    target_agent: str
+    training_task: str
+    target_task: str
+    model: PVEDConfig
+    transfer: TransferConfig
+    pairing: PairingConfig = field(default_factory=PairingConfig)
+    # Task parameters both agents share in a paired training-task episode (paper IV.A),
+    # and those a target-task episode is matched to a source bank episode on.
+    shared_task_keys: tuple[str, ...] = ("target",)
+    bank_match_keys: tuple[str, ...] = ("button_start",)
+    # The paper's performance measure on the target task (IV.A).
+    metric: str = "success_rate"
+    # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
+    policy: PPOConfig = field(default_factory=PPOConfig)
+    policy_overrides: tuple[tuple[str, str, PPOConfig], ...] = ()
+
+    def policy_config(self, agent: str, task: str) -> PPOConfig:
+        """The PPO config used to train ``agent`` on ``task`` for this pair."""
+        for over_agent, over_task, cfg in self.policy_overrides:
+            if (over_agent, over_task) == (agent, task):
+                return cfg
+        return self.policy
+
+
+def _reacher_preset() -> PairPreset:
+    ppo = PPOConfig()
+    return PairPreset(
+        name="reacher",
+        source_agent="Reacher3",
+        target_agent="Reacher4",
+        training_task="Reach",
+        target_task="Push",
+        # Table 1, Reachers: alpha1 = 1, alpha2 = 1, alpha3 = 10, beta = 0.1.
+        model=dataclasses.replace(PVEDConfig(), alpha1=1.0, alpha2=1.0, alpha3=10.0),
+        transfer=TransferConfig(beta=0.1, ppo=ppo),
+        policy=ppo,
+    )
+
+
+PRESETS: dict[str, PairPreset] = {"reacher": _reacher_preset()}
+
+
+def preset_for_agent(agent: str) -> PairPreset:
+    """The first preset in which ``agent`` takes part (for its policies' PPO config)."""
+    for preset in PRESETS.values():
+        if agent in (preset.source_agent, preset.target_agent):
+            return preset
+    agents = sorted({a for p in PRESETS.values() for a in (p.source_agent, p.target_agent)})
+    raise PvedError(f"unknown agent {agent!r}; known agents: {', '.join(agents)}")
+
+
+def get_preset(pair: str) -> PairPreset:
+    """The preset of ``pair``; an unknown name raises :class:`PvedError` listing known ones."""
+    try:
+        return PRESETS[pair]
+    except KeyError:
+        raise PvedError(f"unknown pair {pair!r}; known pairs: {', '.join(sorted(PRESETS))}") from None

@@ -1,0 +1,331 @@
+"""The pipeline's stages as Python functions; every CLI verb is a thin layer over one.
+
+Each stage reads files, writes its run directory (``pved.runs``) and returns the path
+of what it produced (or its result), so stages can be rerun, resumed, skipped when
+done, or replaced by the user's own data:
+
+    train_policy  -> runs/<pair>/policy/<Agent>-<Task>/seed<k>/policy.pt
+    collect_pairs -> runs/<pair>/pairs/<align>/seed<k>/pairs.npz
+    train_model   -> runs/<pair>/model/<model>/seed<k>/model.pt
+    build_bank    -> runs/<pair>/bank/<Agent>-<Task>/seed<k>/bank.npz
+    transfer      -> runs/<pair>/transfer/<method>/seed<k>/{policy.pt,result.json}
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pved import __version__
+from pved.config import PairPreset, get_preset, preset_for_agent
+from pved.envs import make_batched
+from pved.envs.registry import env_id
+from pved.errors import PvedError
+from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
+from pved.models.train import load_model, save_model, train_model as fit_model
+from pved.pairing.collect import collect_pairs as collect_paired_episodes
+from pved.pairing.dataset import load_dataset, save_dataset
+from pved.pretrained import pretrained_policy_path
+from pved.rl.evaluate import evaluate_policy
+from pved.rl.policy import Policy, load_policy
+from pved.rl.ppo import train_ppo
+from pved.runs import Run, run_path
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
+from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
+
+DEFAULT_RUNS = Path("runs")
+EVAL_NUM_ENVS = 16
+NO_TRANSFER = "ppo"
+
+
+def file_digest(path: Path) -> str:
+    """Short content hash of an input file, so a changed input invalidates a done stage."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
+    return Path(path) if path is not None else pretrained_policy_path(agent, task)
+
+
+def _check_policy(policy: Policy, env_name: str, obs_dim: int, act_dim: int) -> None:
+    if policy.obs_dim != obs_dim or policy.act_dim != act_dim:
+        raise PvedError(
+            f"policy dims (obs {policy.obs_dim}, act {policy.act_dim}) do not match {env_name} "
+            f"(obs {obs_dim}, act {act_dim})"
+        )
+
+
+def _eval_fn(
+    env_name: str, episodes: int, seed: int, env_kwargs: dict[str, Any] | None = None
+) -> Callable[[Policy, int], dict[str, float]]:
+    """Evaluation on a fresh, unshaped copy of the env, with seeds apart from training's."""
+    env = make_batched(env_name, EVAL_NUM_ENVS, **(env_kwargs or {}))
+
+    def evaluate(policy: Policy, env_steps: int) -> dict[str, float]:
+        del env_steps
+        stats = evaluate_policy(policy, env, episodes=episodes, seed=seed)
+        return {f"eval/{k}": v for k, v in stats.items()}
+
+    return evaluate
+
+
+def train_policy(
+    agent: str,
+    task: str,
+    *,
+    seed: int = 0,
+    steps: int | None = None,
+    reward: str | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    eval_episodes: int = 100,
+    progress: bool = True,
+) -> Path:
+    """PPO for any agent on any task (``pved train-policy``). Returns the policy file."""
+    preset = preset_for_agent(agent)
+    name = env_id(agent, task)
+    ppo = dataclasses.replace(preset.policy_config(agent, task), seed=seed)
+    if steps is not None:
+        ppo = dataclasses.replace(ppo, total_steps=steps)
+    env_kwargs = {"reward": reward} if reward else {}
+    config = {"stage": "policy", "env_id": name, "env_kwargs": env_kwargs, "ppo": ppo}
+    run = Run(run_path(runs_root, preset.name, "policy", f"{agent}-{task}", seed), config)
+    policy_file = run.path / "policy.pt"
+    if run.is_done() and policy_file.exists():
+        return policy_file
+    run.start()
+    env = make_batched(name, ppo.num_envs, **env_kwargs)
+    eval_fn = _eval_fn(name, eval_episodes, seed + 10**6, env_kwargs)
+    policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
+    final = eval_fn(policy, ppo.total_steps)
+    policy.save(policy_file, {"env_id": name, "env_kwargs": env_kwargs, "seed": seed,
+                              "steps": ppo.total_steps, "pved_version": __version__})
+    run.finish({"policy": str(policy_file), "env_id": name, "steps": ppo.total_steps, **final})
+    return policy_file
+
+
+def collect_pairs(
+    pair: str,
+    *,
+    source_policy: Path | str | None = None,
+    target_policy: Path | str | None = None,
+    episodes: int | None = None,
+    seed: int = 0,
+    align: str | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    progress: bool = True,
+) -> Path:
+    """Paired rollouts of both agents' training-task policies (``pved collect-pairs``)."""
+    preset = get_preset(pair)
+    cfg = preset.pairing
+    episodes = cfg.episodes if episodes is None else episodes
+    align = cfg.align if align is None else align
+    src_path = _policy_or_pretrained(source_policy, preset.source_agent, preset.training_task)
+    tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, preset.training_task)
+    src_id = env_id(preset.source_agent, preset.training_task)
+    tgt_id = env_id(preset.target_agent, preset.training_task)
+    config = {
+        "stage": "pairs", "pair": pair, "episodes": episodes, "seed": seed, "align": align,
+        "pairing": cfg, "source_policy": file_digest(src_path), "target_policy": file_digest(tgt_path),
+    }
+    run = Run(run_path(runs_root, pair, "pairs", align, seed), config, tensorboard=False)
+    out = run.path / "pairs.npz"
+    if run.is_done() and out.exists():
+        return out
+    run.start()
+    src_env = make_batched(src_id, cfg.num_envs)
+    tgt_env = make_batched(tgt_id, cfg.num_envs)
+    src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
+    dataset = collect_paired_episodes(
+        src_env, tgt_env, src_pol, tgt_pol, episodes,
+        shared_task_keys=preset.shared_task_keys, align_method=align,
+        deterministic=cfg.deterministic, seed=seed, progress=progress,
+        header={
+            "pair": pair, "source_agent": preset.source_agent, "target_agent": preset.target_agent,
+            "source_env_id": src_id, "target_env_id": tgt_id,
+            "source_policy": str(src_path), "target_policy": str(tgt_path),
+        },
+    )
+    save_dataset(out, dataset)
+    run.finish({"dataset": str(out), "rows": len(dataset),
+                **{k: dataset.header[k] for k in ("success_rate_source", "success_rate_target",
+                                                   "mean_length_source", "mean_length_target")}})
+    return out
+
+
+def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
+    return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
+
+
+def default_model_path(pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
+    return run_path(runs_root, pair, "model", model, seed) / "model.pt"
+
+
+def train_model(
+    pair: str,
+    model: str = "pved",
+    *,
+    dataset: Path | str | None = None,
+    seed: int = 0,
+    epochs: int | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    progress: bool = True,
+) -> Path:
+    """Fit a shared-space model on a paired dataset (``pved train-model``)."""
+    preset = get_preset(pair)
+    data_path = Path(dataset) if dataset is not None else default_dataset_path(pair, runs_root)
+    data = load_dataset(data_path)
+    data.check_agents(preset.source_agent, preset.target_agent)
+    src_env = make_batched(env_id(preset.source_agent, preset.training_task), 1)
+    tgt_env = make_batched(env_id(preset.target_agent, preset.training_task), 1)
+    data.check_dims(
+        src_env.single_observation_space.shape[0], src_env.single_action_space.shape[0],
+        tgt_env.single_observation_space.shape[0], tgt_env.single_action_space.shape[0],
+    )
+    model_cfg = dataclasses.replace(preset.model, seed=seed)
+    if epochs is not None:
+        model_cfg = dataclasses.replace(model_cfg, epochs=epochs)
+    config = {"stage": "model", "pair": pair, "model": model, "dataset": file_digest(data_path),
+              "model_config": model_cfg}
+    run = Run(run_path(runs_root, pair, "model", model, seed), config)
+    out = run.path / "model.pt"
+    if run.is_done() and out.exists():
+        return out
+    run.start()
+    x_s, x_t = data.model_inputs()
+    fitted = fit_model(model, x_s, x_t, model_cfg, run, state_dims=data.state_dims,
+                       progress=progress)
+    save_model(fitted, out, {"pair": pair, "model": model, "dataset": str(data_path),
+                             "source_agent": preset.source_agent,
+                             "target_agent": preset.target_agent, "seed": seed,
+                             "robot_state_indices_source": data.header["robot_state_indices_source"],
+                             "robot_state_indices_target": data.header["robot_state_indices_target"]})
+    last = run.read_metrics()[-1] if run.read_metrics() else {}
+    run.finish({"model": str(out), **{k: v for k, v in last.items() if k != "step"}})
+    return out
+
+
+def build_bank(
+    pair: str,
+    *,
+    source_policy: Path | str | None = None,
+    episodes: int | None = None,
+    seed: int = 0,
+    runs_root: Path = DEFAULT_RUNS,
+) -> Path:
+    """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer."""
+    preset = get_preset(pair)
+    episodes = preset.transfer.bank_episodes if episodes is None else episodes
+    path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
+    name = env_id(preset.source_agent, preset.target_task)
+    config = {"stage": "bank", "env_id": name, "episodes": episodes, "seed": seed,
+              "match_keys": preset.bank_match_keys, "source_policy": file_digest(path)}
+    run = Run(run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
+              config, tensorboard=False)
+    out = run.path / "bank.npz"
+    if run.is_done() and out.exists():
+        return out
+    run.start()
+    env = make_batched(name, EVAL_NUM_ENVS)
+    bank = build_source_bank(env, load_policy(path), episodes, preset.bank_match_keys, seed=seed,
+                             header={"env_id": name, "source_policy": str(path)})
+    save_bank(out, bank)
+    run.finish({"bank": str(out), "episodes": episodes,
+                "success_rate": bank.header["success_rate"]})
+    return out
+
+
+def transfer(
+    pair: str,
+    method: str = "pved",
+    *,
+    seed: int = 20000,
+    model_path: Path | str | None = None,
+    bank_path: Path | str | None = None,
+    steps: int | None = None,
+    beta: float | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int | None = None,
+    final_eval_episodes: int | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """PPO of the target agent on the target task, with the Eq. 10 shaping of ``method``'s
+    model, or none for ``method="ppo"`` (``pved transfer``). Returns ``result.json``."""
+    torch.set_num_threads(1)
+    preset = get_preset(pair)
+    tcfg = preset.transfer
+    beta = tcfg.beta if beta is None else beta
+    ppo = dataclasses.replace(tcfg.ppo, seed=seed)
+    if steps is not None:
+        ppo = dataclasses.replace(ppo, total_steps=steps)
+    if eval_every is not None:
+        ppo = dataclasses.replace(ppo, eval_every=eval_every)
+    eval_episodes = tcfg.eval_episodes if eval_episodes is None else eval_episodes
+    final_episodes = tcfg.final_eval_episodes if final_eval_episodes is None else final_eval_episodes
+    name = env_id(preset.target_agent, preset.target_task)
+    config: dict[str, Any] = {"stage": "transfer", "pair": pair, "method": method, "env_id": name,
+                              "ppo": ppo, "eval_episodes": eval_episodes,
+                              "final_eval_episodes": final_episodes}
+    shaping_inputs: tuple[Path, Path] | None = None
+    if method != NO_TRANSFER:
+        m_path = Path(model_path) if model_path else default_model_path(pair, method, runs_root)
+        b_path = Path(bank_path) if bank_path else (
+            run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
+            / "bank.npz")
+        for what, p in (("model", m_path), ("source bank", b_path)):
+            if not p.exists():
+                raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
+        shaping_inputs = (m_path, b_path)
+        config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
+    run = Run(run_path(runs_root, pair, "transfer", method, seed), config)
+    if run.is_done():
+        return run.read_result()
+    run.start()
+    env = make_batched(name, ppo.num_envs)
+    if shaping_inputs is not None:
+        model = load_model(shaping_inputs[0])
+        if model.metadata.get("target_agent") not in (None, preset.target_agent):
+            raise PvedError(f"model {shaping_inputs[0]} was trained for another pair")
+        bank = load_bank(shaping_inputs[1])
+        shaping = LatentShaping(model, bank, beta, env.robot_state_indices)
+        env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
+    eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed)
+    policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
+    policy_file = run.path / "policy.pt"
+    policy.save(policy_file, {"env_id": name, "seed": seed, "method": method,
+                              "steps": ppo.total_steps, "pved_version": __version__})
+    final = evaluate_policy(policy, make_batched(name, EVAL_NUM_ENVS), episodes=final_episodes,
+                            seed=2 * 10**6 + seed)
+    return run.finish({"method": method, "seed": seed, "steps": ppo.total_steps,
+                       "policy": str(policy_file), **{f"final/{k}": v for k, v in final.items()}})
+
+
+def evaluate(
+    policy_path: Path | str, env_name: str, *, episodes: int = 500, seed: int = 0,
+    reward: str | None = None,
+) -> dict[str, float]:
+    """Evaluate a saved policy (``pved evaluate``): success rate, return, length."""
+    policy = load_policy(Path(policy_path))
+    env = make_batched(env_name, EVAL_NUM_ENVS, **({"reward": reward} if reward else {}))
+    _check_policy(policy, env_name, env.single_observation_space.shape[0],
+                  env.single_action_space.shape[0])
+    return evaluate_policy(policy, env, episodes=episodes, seed=seed)
+
+
+def preset_summary(preset: PairPreset) -> dict[str, Any]:
+    """A small JSON-able description of a preset (for reports)."""
+    return {"pair": preset.name, "source": preset.source_agent, "target": preset.target_agent,
+            "training_task": preset.training_task, "target_task": preset.target_task,
+            "alpha": [preset.model.alpha1, preset.model.alpha2, preset.model.alpha3],
+            "beta": preset.transfer.beta}
+
+
+__all__ = [
+    "build_bank", "collect_pairs", "evaluate", "np", "train_model", "train_policy", "transfer",
+]

@@ -1,0 +1,171 @@
+"""Paired rollouts on the training task (paper IV.A, "Training of PVED").
+
+Both agents' training-task policies run side by side with the same root, the same
+random task parameters per episode (the reach target; later the slope angle) and
+similar random initial states; each episode pair is then time-aligned (``align.py``)
+and written as one paired dataset (``dataset.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from pved.envs.base import BatchedEnv
+from pved.errors import PvedError
+from pved.pairing.align import align
+from pved.pairing.dataset import PairedDataset
+from pved.rl.policy import Policy
+
+
+@dataclass
+class Episode:
+    """One finished episode: ``obs[t]`` is the observation the action ``act[t]`` was taken in."""
+
+    obs: np.ndarray  # (T, obs_dim)
+    act: np.ndarray  # (T, act_dim)
+    reset_info: dict[str, Any]  # this copy's reset info (task parameters)
+    success: bool
+
+
+def rollout_first_episodes(
+    env: BatchedEnv,
+    policy: Policy,
+    seed: int,
+    options: Mapping[str, Any] | None = None,
+    deterministic: bool = True,
+) -> list[Episode]:
+    """Run one episode in each of the ``env.num_envs`` copies and return them.
+
+    Copies that finish early keep stepping (the batch moves together) but their
+    later, autoreset episodes are discarded, so every returned episode starts from the
+    reset made here with ``seed`` and ``options``.
+    """
+    n = env.num_envs
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed, options=dict(options) if options else None)
+    reset_info = [{k: np.asarray(v[i]) for k, v in info.items()} for i in range(n)]
+    obs_log: list[np.ndarray] = []
+    act_log: list[np.ndarray] = []
+    length = np.full(n, -1, dtype=np.int64)
+    success = np.zeros(n, dtype=bool)
+    for t in range(env.max_episode_steps + 1):
+        if np.all(length >= 0):
+            break
+        action = policy.act(obs, deterministic=deterministic, rng=rng)
+        obs_log.append(obs.copy())
+        act_log.append(np.asarray(action, dtype=np.float64).copy())
+        obs, _, terminated, truncated, info = env.step(action)
+        done = (terminated | truncated) & (length < 0)
+        if "is_success" in info:
+            success[done] = np.asarray(info["is_success"], dtype=bool)[done]
+        length[done] = t + 1
+    if np.any(length < 0):
+        raise PvedError(f"episodes did not end within max_episode_steps={env.max_episode_steps}")
+    obs_arr = np.stack(obs_log, 1)  # (N, T, obs_dim)
+    act_arr = np.stack(act_log, 1)
+    return [
+        Episode(obs_arr[i, : length[i]], act_arr[i, : length[i]], reset_info[i], bool(success[i]))
+        for i in range(n)
+    ]
+
+
+def collect_pairs(
+    source_env: BatchedEnv,
+    target_env: BatchedEnv,
+    source_policy: Policy,
+    target_policy: Policy,
+    episodes: int,
+    *,
+    shared_task_keys: tuple[str, ...],
+    align_method: str = "subsample",
+    deterministic: bool = True,
+    seed: int = 0,
+    header: Mapping[str, Any] | None = None,
+    progress: bool = True,
+) -> PairedDataset:
+    """Collect ``episodes`` paired episodes and align them into a :class:`PairedDataset`.
+
+    Per batch, the source env draws the task parameters named in ``shared_task_keys``
+    (e.g. ``("target",)``) and the target env is reset with exactly those, so both agents
+    solve the same task instance. Initial joint states are each env's own small random
+    perturbation (the "similar random initial states" of the paper).
+    """
+    if source_env.num_envs != target_env.num_envs:
+        raise PvedError("source and target envs must have the same number of copies")
+    for name, env, pol in (("source", source_env, source_policy), ("target", target_env, target_policy)):
+        if pol.obs_dim != env.single_observation_space.shape[0] or pol.act_dim != env.single_action_space.shape[0]:
+            raise PvedError(
+                f"{name} policy dims (obs {pol.obs_dim}, act {pol.act_dim}) do not match its env "
+                f"(obs {env.single_observation_space.shape[0]}, act {env.single_action_space.shape[0]})"
+            )
+    n = source_env.num_envs
+    batches = -(-episodes // n)
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("os", "as", "ot", "at", "ep", "ts", "tt")}
+    task: dict[str, list[np.ndarray]] = {k: [] for k in shared_task_keys}
+    lengths: list[tuple[int, int]] = []
+    successes: list[tuple[bool, bool]] = []
+    ep_index = 0
+    bar = tqdm(total=batches * n, desc="collect pairs", unit="ep", disable=not progress)
+    for b in range(batches):
+        batch_seed = seed + b * n
+        src = rollout_first_episodes(source_env, source_policy, batch_seed, None, deterministic)
+        shared = {k: np.stack([e.reset_info[k] for e in src]) for k in shared_task_keys}
+        tgt = rollout_first_episodes(target_env, target_policy, batch_seed, shared, deterministic)
+        for e_s, e_t in zip(src, tgt, strict=True):
+            for k in shared_task_keys:
+                if not np.allclose(e_s.reset_info[k], e_t.reset_info[k]):
+                    raise PvedError(f"target env did not accept the shared task parameter {k!r}")
+            i_s, i_t = align(align_method, len(e_s.obs), len(e_t.obs))
+            rows["os"].append(e_s.obs[i_s])
+            rows["as"].append(e_s.act[i_s])
+            rows["ot"].append(e_t.obs[i_t])
+            rows["at"].append(e_t.act[i_t])
+            rows["ep"].append(np.full(len(i_s), ep_index, dtype=np.int64))
+            rows["ts"].append(i_s)
+            rows["tt"].append(i_t)
+            for k in shared_task_keys:
+                task[k].append(e_s.reset_info[k])
+            lengths.append((len(e_s.obs), len(e_t.obs)))
+            successes.append((e_s.success, e_t.success))
+            ep_index += 1
+        bar.update(n)
+    bar.close()
+    # keep exactly ``episodes`` episodes (the last batch may overshoot)
+    keep = np.concatenate(rows["ep"]) < episodes
+    cat = {k: np.concatenate(v)[keep] for k, v in rows.items()}
+    success_arr = np.asarray(successes[:episodes], dtype=bool)
+    length_arr = np.asarray(lengths[:episodes], dtype=np.int64)
+    full_header = {
+        **(dict(header) if header else {}),
+        "robot_state_indices_source": [int(i) for i in source_env.robot_state_indices],
+        "robot_state_indices_target": [int(i) for i in target_env.robot_state_indices],
+        "obs_dim_source": int(source_env.single_observation_space.shape[0]),
+        "act_dim_source": int(source_env.single_action_space.shape[0]),
+        "obs_dim_target": int(target_env.single_observation_space.shape[0]),
+        "act_dim_target": int(target_env.single_action_space.shape[0]),
+        "alignment": align_method,
+        "deterministic_actions": deterministic,
+        "seed": seed,
+        "episodes": episodes,
+        "shared_task_keys": list(shared_task_keys),
+        "success_rate_source": float(success_arr[:, 0].mean()),
+        "success_rate_target": float(success_arr[:, 1].mean()),
+        "mean_length_source": float(length_arr[:, 0].mean()),
+        "mean_length_target": float(length_arr[:, 1].mean()),
+    }
+    return PairedDataset(
+        obs_source=cat["os"],
+        act_source=cat["as"],
+        obs_target=cat["ot"],
+        act_target=cat["at"],
+        episode=cat["ep"],
+        t_source=cat["ts"],
+        t_target=cat["tt"],
+        task={k: np.stack(v[:episodes]) for k, v in task.items()},
+        header=full_header,
+    )

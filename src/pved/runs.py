@@ -1,0 +1,247 @@
+"""Run directories: the file contract every stage writes (DESIGN.md "Contracts").
+
+``runs/<pair>/<stage>/<name>/seed<k>/`` holds
+
+- ``config.json``: the resolved config, the package version and git commit, its hash;
+- ``metrics.jsonl``: one JSON object per logged step (also mirrored to TensorBoard);
+- ``events.out.tfevents.*``: TensorBoard events;
+- ``checkpoints/step<N>.pt``: resumable state, newest wins;
+- ``result.json``: written last and atomically; its presence with the same config hash
+  means the stage is done and is skipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import subprocess
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pved import __version__
+from pved.errors import PvedError
+
+CHECKPOINT_DIR = "checkpoints"
+
+
+def to_jsonable(value: Any) -> Any:
+    """Dataclasses, paths, tuples and numpy scalars as plain JSON values."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: to_jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if hasattr(value, "item") and callable(value.item):  # numpy / torch scalars
+        return value.item()
+    return value
+
+
+def config_hash(config: Mapping[str, Any]) -> str:
+    """Stable short hash of a resolved config (key order does not matter)."""
+    text = json.dumps(to_jsonable(config), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def git_commit() -> str | None:
+    """The commit of the source tree pved runs from, when it is a git checkout."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old file or the whole new one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    """Atomically write ``obj`` as indented JSON."""
+    atomic_write_bytes(path, (json.dumps(to_jsonable(obj), indent=2) + "\n").encode())
+
+
+def atomic_torch_save(path: Path, obj: Any) -> None:
+    """Atomically ``torch.save`` a state (tensors, numbers, strings, dicts, lists only, so
+    that it loads back with ``weights_only=True``)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def safe_torch_load(path: Path) -> Any:
+    """Load a checkpoint or weights file without executing code; a corrupt or foreign
+    file raises :class:`PvedError` naming it."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise PvedError(f"file not found: {path}") from None
+    except Exception as exc:  # torch raises many types for bad files
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise PvedError(f"cannot load {path}: not a pved checkpoint ({first[:120]})") from None
+
+
+def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:
+    """``<root>/<pair>/<stage>/<name>/seed<k>``."""
+    return Path(root) / pair / stage / name / f"seed{seed}"
+
+
+class Run:
+    """One stage's run directory.
+
+    Typical use::
+
+        run = Run(path, config)
+        if run.is_done():
+            return run.read_result()
+        state = run.latest_checkpoint()      # None, or the newest saved state
+        ...
+        run.log(step, loss=..., return_mean=...)
+        run.save_checkpoint(step, state)
+        run.finish({"success_rate": ...})     # result.json, written last
+    """
+
+    def __init__(self, path: Path | str, config: Mapping[str, Any], tensorboard: bool = True):
+        self.path = Path(path)
+        self.config = to_jsonable(config)
+        self.hash = config_hash(self.config)
+        self._use_tensorboard = tensorboard
+        self._writer: Any = None
+
+    # -- state queries -------------------------------------------------------------
+    @property
+    def result_path(self) -> Path:
+        return self.path / "result.json"
+
+    def is_done(self) -> bool:
+        """True when ``result.json`` exists and was written under the same config hash."""
+        if not self.result_path.exists():
+            return False
+        try:
+            result = json.loads(self.result_path.read_text())
+        except (OSError, json.JSONDecodeError):
+            return False
+        return bool(result.get("config_hash") == self.hash)
+
+    def read_result(self) -> dict[str, Any]:
+        """The finished run's ``result.json``."""
+        return dict(json.loads(self.result_path.read_text()))
+
+    # -- writing ---------------------------------------------------------------------
+    def start(self) -> None:
+        """Create the directory and write ``config.json``. A previous run with another
+        config hash and no result is cleared of its checkpoints and metrics, so that it
+        cannot be resumed into the new config."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        config_file = self.path / "config.json"
+        if config_file.exists():
+            try:
+                old = json.loads(config_file.read_text()).get("config_hash")
+            except (OSError, json.JSONDecodeError):
+                old = None
+            if old != self.hash:
+                for ckpt in self.checkpoint_dir.glob("*.pt"):
+                    ckpt.unlink()
+                (self.path / "metrics.jsonl").unlink(missing_ok=True)
+                for events in self.path.glob("events.out.tfevents.*"):
+                    events.unlink()
+                self.result_path.unlink(missing_ok=True)
+        atomic_write_json(
+            config_file,
+            {
+                "config": self.config,
+                "config_hash": self.hash,
+                "pved_version": __version__,
+                "git_commit": git_commit(),
+            },
+        )
+
+    def log(self, step: int, **scalars: float) -> None:
+        """Append one ``metrics.jsonl`` line and the same scalars to TensorBoard."""
+        clean = {k: float(v) for k, v in scalars.items()}
+        record = {"step": int(step), **{k: (v if math.isfinite(v) else None) for k, v in clean.items()}}
+        with open(self.path / "metrics.jsonl", "a") as handle:
+            handle.write(json.dumps(record) + "\n")
+        if self._use_tensorboard:
+            writer = self._tensorboard()
+            for key, value in clean.items():
+                writer.add_scalar(key, value, int(step))
+
+    def _tensorboard(self) -> Any:
+        if self._writer is None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(log_dir=str(self.path), flush_secs=30)
+        return self._writer
+
+    def read_metrics(self) -> list[dict[str, Any]]:
+        """All ``metrics.jsonl`` records in order."""
+        path = self.path / "metrics.jsonl"
+        if not path.exists():
+            return []
+        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / CHECKPOINT_DIR
+
+    def save_checkpoint(self, step: int, state: Mapping[str, Any], keep: int = 2) -> Path:
+        """Atomically save a resumable state; older checkpoints beyond ``keep`` go."""
+        path = self.checkpoint_dir / f"step{int(step):012d}.pt"
+        atomic_torch_save(path, dict(state))
+        for old in sorted(self.checkpoint_dir.glob("step*.pt"))[:-keep]:
+            old.unlink(missing_ok=True)
+        return path
+
+    def latest_checkpoint(self) -> dict[str, Any] | None:
+        """The newest checkpoint's state, or None when there is none."""
+        ckpts = sorted(self.checkpoint_dir.glob("step*.pt"))
+        if not ckpts:
+            return None
+        return dict(safe_torch_load(ckpts[-1]))
+
+    def finish(self, result: Mapping[str, Any]) -> dict[str, Any]:
+        """Write ``result.json`` (last, atomically) and close TensorBoard."""
+        full = {**to_jsonable(result), "config_hash": self.hash}
+        self.close()
+        atomic_write_json(self.result_path, full)
+        return full
+
+    def close(self) -> None:
+        """Flush and close the TensorBoard writer."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None

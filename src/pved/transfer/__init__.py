@@ -1,0 +1,1 @@
+"""pved.transfer"""

@@ -1,0 +1,170 @@
+"""Reward shaping through the shared subspace (paper Eq. 10).
+
+    r_t = r_env(s_T, a_T) − β · KL( q_φS(c | s_S, a_S) ‖ q_φT(c | s_T, a_T) )
+
+(s_S, a_S) is the source's state-action at the same time step of the bank episode
+matched to this target episode (``source_bank.py``). For a model with a deterministic
+shared space the distance replaces the KL (``SharedSpaceModel.shaping``).
+
+Two forms, one computation (:class:`LatentShaping`):
+
+- :class:`ShapedBatchedEnv`, a :class:`BatchedEnv` for pved's own PPO;
+- :class:`LatentShapingWrapper`, a plain ``gymnasium.Wrapper``, so any Gymnasium RL
+  library (Stable-Baselines3, RLlib, CleanRL) can train on the shaped reward.
+
+Both put the shaping term in ``info["reward_shaping"]`` (so the ``reward_*`` terms still
+sum to the reward) and the unshaped env reward in ``info["env_reward"]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from pved.envs.base import BatchedEnv, Info
+from pved.errors import PvedError
+from pved.models.base import SharedSpaceModel
+from pved.transfer.source_bank import SourceBank
+
+
+def task_params(info: dict[str, Any], keys: tuple[str, ...], n: int) -> np.ndarray:
+    """The matching keys of ``info`` as one (n, K) array."""
+    missing = [k for k in keys if k not in info]
+    if missing:
+        raise PvedError(f"env info lacks the task parameters {missing} the source bank matches on")
+    return np.concatenate([np.asarray(info[k], dtype=np.float64).reshape(n, -1) for k in keys], 1)
+
+
+class LatentShaping:
+    """Computes −β·D(source, target) for a batch of target state-actions.
+
+    Args:
+        model: a trained shared-space model (PVED or a variant); applies its own
+            input standardisation.
+        bank: source state-actions on the target task.
+        beta: the shaping weight β of Eq. 10.
+        robot_state_indices: indices of the target's robot state in its observation.
+    """
+
+    def __init__(
+        self,
+        model: SharedSpaceModel,
+        bank: SourceBank,
+        beta: float,
+        robot_state_indices: np.ndarray,
+    ) -> None:
+        self.model = model.eval()
+        self.bank = bank
+        self.beta = float(beta)
+        self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
+        if bank.dim != model.source_dim:
+            raise PvedError(
+                f"source bank rows have dim {bank.dim}, the model's source input is {model.source_dim}"
+            )
+
+    def reward(
+        self, obs: np.ndarray, action: np.ndarray, episode: np.ndarray, t: np.ndarray
+    ) -> np.ndarray:
+        """Shaping term (N,) for target observations (N, obs_dim) and actions (N, act_dim)
+        at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,)."""
+        x_t = np.concatenate([obs[:, self.robot_state_indices], action], 1)
+        if x_t.shape[1] != self.model.target_dim:
+            raise PvedError(
+                f"target state-action has dim {x_t.shape[1]}, the model's target input is "
+                f"{self.model.target_dim}"
+            )
+        x_s = self.bank.lookup(episode, t)
+        with torch.no_grad():
+            distance = self.model.shaping(
+                torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
+            )
+        return -self.beta * distance.double().numpy()
+
+
+class ShapedBatchedEnv(BatchedEnv):
+    """A batched env whose reward carries the Eq. 10 shaping term."""
+
+    def __init__(self, env: BatchedEnv, shaping: LatentShaping, match_keys: tuple[str, ...]):
+        self.env = env
+        self.shaping = shaping
+        self.match_keys = match_keys
+        self.num_envs = env.num_envs
+        self.single_observation_space = env.single_observation_space
+        self.single_action_space = env.single_action_space
+        self.robot_state_indices = env.robot_state_indices
+        self.max_episode_steps = env.max_episode_steps
+        self._obs = np.zeros((self.num_envs, *env.single_observation_space.shape))
+        self._t = np.zeros(self.num_envs, dtype=np.int64)
+        self._episode = np.zeros(self.num_envs, dtype=np.int64)
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, Info]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        self._t[:] = 0
+        self._episode = self.shaping.bank.match(task_params(info, self.match_keys, self.num_envs))
+        return obs, info
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Info]:
+        actions = np.asarray(actions, dtype=np.float64)
+        shaping = self.shaping.reward(self._obs, actions, self._episode, self._t)
+        obs, env_reward, terminated, truncated, info = self.env.step(actions)
+        info = dict(info)
+        info["env_reward"] = env_reward
+        info["reward_shaping"] = shaping
+        done = terminated | truncated
+        self._t += 1
+        if done.any():
+            self._t[done] = 0
+            params = task_params(info, self.match_keys, self.num_envs)
+            self._episode[done] = self.shaping.bank.match(params[done])
+        self._obs = obs
+        return obs, env_reward + shaping, terminated, truncated, info
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class LatentShapingWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """The Eq. 10 shaping as a plain Gymnasium wrapper around one target-task env."""
+
+    def __init__(self, env: gym.Env[np.ndarray, np.ndarray], shaping: LatentShaping,
+                 match_keys: tuple[str, ...]) -> None:
+        super().__init__(env)
+        self.shaping = shaping
+        self.match_keys = match_keys
+        self._obs: np.ndarray = np.zeros(env.observation_space.shape or ())
+        self._t = 0
+        self._episode = 0
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = np.asarray(obs)
+        self._t = 0
+        self._episode = int(self.shaping.bank.match(task_params(info, self.match_keys, 1))[0])
+        return obs, info
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        act = np.asarray(action, dtype=np.float64).reshape(1, -1)
+        shaping = float(
+            self.shaping.reward(
+                self._obs[None], act, np.array([self._episode]), np.array([self._t])
+            )[0]
+        )
+        obs, env_reward, terminated, truncated, info = self.env.step(action)
+        info = dict(info)
+        info["env_reward"] = float(env_reward)
+        info["reward_shaping"] = shaping
+        self._t += 1
+        self._obs = np.asarray(obs)
+        return obs, float(env_reward) + shaping, terminated, truncated, info

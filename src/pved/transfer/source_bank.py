@@ -1,0 +1,131 @@
+"""A bank of the source agent's state-actions on the target task.
+
+Eq. 10 needs, at every step of the target agent, a source state-action (s_S, a_S) to
+compare with. The paper does not pair trajectories on the target task, so we roll out
+the source's target-task policy on many task instances once, and at transfer time match
+each target episode to the bank episode whose task parameters are nearest (e.g. the
+button's start position) and each target step t to that episode's step t (the last step
+once the source episode has ended).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pved import __version__
+from pved.envs.base import BatchedEnv
+from pved.errors import PvedError
+from pved.pairing.collect import rollout_first_episodes
+from pved.rl.policy import Policy
+from pved.runs import atomic_write_bytes
+
+FORMAT = "pved-source-bank/1"
+
+
+@dataclass
+class SourceBank:
+    """Source state-actions per episode, padded to a common length.
+
+    Attributes:
+        x: (E, T_max, D_S) robot state then action; rows past an episode's end repeat
+            its last row.
+        lengths: (E,) episode lengths.
+        keys: (E, K) task parameters the episodes are matched on.
+        header: JSON-able description (env id, policy, match keys, dims, seed).
+    """
+
+    x: np.ndarray
+    lengths: np.ndarray
+    keys: np.ndarray
+    header: dict[str, Any]
+
+    @property
+    def dim(self) -> int:
+        return int(self.x.shape[2])
+
+    def match(self, task_params: np.ndarray) -> np.ndarray:
+        """Index (N,) of the bank episode nearest to each row of ``task_params`` (N, K)."""
+        params = np.asarray(task_params, dtype=np.float64).reshape(len(task_params), -1)
+        if params.shape[1] != self.keys.shape[1]:
+            raise PvedError(
+                f"task parameters have {params.shape[1]} entries, the bank matches on {self.keys.shape[1]}"
+            )
+        dist = ((params[:, None, :] - self.keys[None, :, :]) ** 2).sum(-1)
+        return np.asarray(dist.argmin(1), dtype=np.int64)
+
+    def lookup(self, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Source state-actions (N, D_S) at step ``t`` (N,) of bank episodes ``episode`` (N,)."""
+        step = np.minimum(t, self.lengths[episode] - 1)
+        return np.asarray(self.x[episode, step])
+
+
+def build_source_bank(
+    env: BatchedEnv,
+    policy: Policy,
+    episodes: int,
+    match_keys: tuple[str, ...],
+    *,
+    seed: int = 0,
+    deterministic: bool = True,
+    header: dict[str, Any] | None = None,
+) -> SourceBank:
+    """Roll out ``policy`` for ``episodes`` episodes and keep robot state + action."""
+    idx = np.asarray(env.robot_state_indices)
+    eps = []
+    for b in range(-(-episodes // env.num_envs)):
+        eps.extend(rollout_first_episodes(env, policy, seed + b * env.num_envs, None, deterministic))
+    eps = eps[:episodes]
+    t_max = max(len(e.obs) for e in eps)
+    dim = len(idx) + eps[0].act.shape[1]
+    x = np.zeros((len(eps), t_max, dim), dtype=np.float32)
+    for i, e in enumerate(eps):
+        rows = np.concatenate([e.obs[:, idx], e.act], 1)
+        x[i, : len(rows)] = rows
+        x[i, len(rows) :] = rows[-1]
+    keys = np.stack(
+        [np.concatenate([np.ravel(e.reset_info[k]) for k in match_keys]) for e in eps]
+    ).astype(np.float64)
+    full_header = {
+        **(header or {}),
+        "match_keys": list(match_keys),
+        "episodes": len(eps),
+        "seed": seed,
+        "success_rate": float(np.mean([e.success for e in eps])),
+        "robot_state_indices": [int(i) for i in idx],
+    }
+    return SourceBank(x, np.array([len(e.obs) for e in eps], dtype=np.int64), keys, full_header)
+
+
+def save_bank(path: Path | str, bank: SourceBank) -> Path:
+    """Atomically write the bank as ``.npz`` with a JSON header."""
+    header = {"format": FORMAT, "pved_version": __version__, **bank.header}
+    buffer = io.BytesIO()
+    np.savez_compressed(
+        buffer, x=bank.x, lengths=bank.lengths, keys=bank.keys, header=np.array(json.dumps(header))
+    )
+    path = Path(path)
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
+def load_bank(path: Path | str) -> SourceBank:
+    """Read a source bank; a missing, corrupt or foreign file raises :class:`PvedError`."""
+    path = Path(path)
+    if not path.exists():
+        raise PvedError(f"source bank not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+            bank = SourceBank(data["x"], data["lengths"], data["keys"], header)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError, json.JSONDecodeError):
+        raise PvedError(f"cannot read source bank {path}: corrupt or foreign file") from None
+    if header.get("format") != FORMAT:
+        raise PvedError(f"{path} is not a pved source bank")
+    return bank

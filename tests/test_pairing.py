@@ -1,0 +1,76 @@
+"""Alignment by subsampling (paper IV.A) and the paired dataset file contract."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pved.errors import PvedError
+from pved.pairing.align import align, subsample_indices
+from pved.pairing.dataset import PairedDataset, load_dataset, save_dataset
+
+
+def test_subsample_keeps_shorter_and_spreads_longer() -> None:
+    i_s, i_t = subsample_indices(10, 4)
+    assert i_t.tolist() == [0, 1, 2, 3]
+    assert i_s.tolist() == [0, 3, 6, 9]  # first and last kept, evenly spaced
+    i_s, i_t = subsample_indices(3, 7)
+    assert i_s.tolist() == [0, 1, 2] and i_t.tolist() == [0, 3, 6]
+    i_s, i_t = subsample_indices(5, 5)
+    assert i_s.tolist() == i_t.tolist() == [0, 1, 2, 3, 4]
+    with pytest.raises(PvedError):
+        align("warp", 3, 3)
+
+
+def _dataset(rows: int = 12) -> PairedDataset:
+    rng = np.random.default_rng(0)
+    return PairedDataset(
+        obs_source=rng.normal(size=(rows, 5)),
+        act_source=rng.normal(size=(rows, 3)),
+        obs_target=rng.normal(size=(rows, 7)),
+        act_target=rng.normal(size=(rows, 4)),
+        episode=np.repeat(np.arange(rows // 4), 4),
+        t_source=np.tile(np.arange(4), rows // 4),
+        t_target=np.tile(np.arange(4), rows // 4),
+        task={"target": rng.normal(size=(rows // 4, 2))},
+        header={"pair": "reacher", "source_agent": "Reacher3", "target_agent": "Reacher4",
+                "robot_state_indices_source": [0, 1, 2], "robot_state_indices_target": [0, 2, 4, 6]},
+    )
+
+
+def test_dataset_round_trip_and_model_inputs(tmp_path: Path) -> None:
+    data = _dataset()
+    path = save_dataset(tmp_path / "pairs.npz", data)
+    back = load_dataset(path)
+    np.testing.assert_array_equal(back.obs_target, data.obs_target)
+    np.testing.assert_array_equal(back.task["target"], data.task["target"])
+    x_s, x_t = back.model_inputs()
+    assert x_s.shape == (12, 3 + 3) and x_t.shape == (12, 4 + 4)
+    np.testing.assert_allclose(x_t[:, :4], data.obs_target[:, [0, 2, 4, 6]].astype(np.float32))
+    np.testing.assert_allclose(x_t[:, 4:], data.act_target.astype(np.float32))
+    assert back.state_dims == (3, 4)
+    back.check_agents("Reacher3", "Reacher4")
+    with pytest.raises(PvedError, match="dataset is for"):
+        back.check_agents("Walker2d", "Hopper")
+    with pytest.raises(PvedError, match="obs_target has dim 7"):
+        back.check_dims(5, 3, 8, 4)
+
+
+def test_bad_datasets_are_one_line_errors(tmp_path: Path) -> None:
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"PK\x03\x04 this is not a zip")
+    with pytest.raises(PvedError, match="corrupt"):
+        load_dataset(corrupt)
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, a=np.zeros(3))
+    with pytest.raises(PvedError, match="not a pved paired dataset"):
+        load_dataset(foreign)
+    with pytest.raises(PvedError, match="not found"):
+        load_dataset(tmp_path / "nope.npz")
+    data = _dataset()
+    data.obs_source[0, 0] = np.nan
+    with pytest.raises(PvedError, match="NaN"):
+        save_dataset(tmp_path / "nan.npz", data)
+    assert not (tmp_path / "nan.npz").exists()

@@ -1,0 +1,66 @@
+"""Run-directory contract: config hash, skip-if-done, resume, atomic result."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from pved.errors import PvedError
+from pved.runs import Run, atomic_write_json, config_hash, run_path, safe_torch_load
+
+
+def test_config_hash_ignores_key_order_and_sees_values() -> None:
+    assert config_hash({"a": 1, "b": [1, 2]}) == config_hash({"b": [1, 2], "a": 1})
+    assert config_hash({"a": 1}) != config_hash({"a": 2})
+
+
+def test_run_lifecycle_skip_if_done_and_config_change(tmp_path: Path) -> None:
+    path = run_path(tmp_path, "reacher", "model", "pved", 3)
+    assert path == tmp_path / "reacher" / "model" / "pved" / "seed3"
+    run = Run(path, {"lr": 1e-4}, tensorboard=False)
+    assert not run.is_done()
+    run.start()
+    run.log(1, loss=2.0)
+    run.log(2, loss=float("nan"))
+    assert [r["loss"] for r in run.read_metrics()] == [2.0, None]
+    run.save_checkpoint(10, {"w": torch.ones(2), "step": 10})
+    run.save_checkpoint(20, {"w": torch.zeros(2), "step": 20})
+    run.save_checkpoint(30, {"w": torch.zeros(2), "step": 30})
+    assert len(list(run.checkpoint_dir.glob("*.pt"))) == 2  # only the newest kept
+    latest = run.latest_checkpoint()
+    assert latest is not None and latest["step"] == 30
+    run.finish({"score": 1.5})
+    assert Run(path, {"lr": 1e-4}).is_done()
+    config = json.loads((path / "config.json").read_text())
+    assert config["config_hash"] == run.hash and "pved_version" in config
+    # another config: not done, and its start clears the old run's checkpoints
+    other = Run(path, {"lr": 3e-4}, tensorboard=False)
+    assert not other.is_done()
+    other.start()
+    assert other.latest_checkpoint() is None
+    assert not other.result_path.exists()
+
+
+def test_tensorboard_events_written(tmp_path: Path) -> None:
+    run = Run(tmp_path / "r", {"x": 1})
+    run.start()
+    run.log(5, reward=1.0)
+    run.finish({})
+    assert list((tmp_path / "r").glob("events.out.tfevents.*"))
+
+
+def test_atomic_write_leaves_no_temp_files(tmp_path: Path) -> None:
+    atomic_write_json(tmp_path / "a.json", {"k": 1})
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_corrupt_checkpoint_is_a_one_line_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(PvedError, match="cannot load"):
+        safe_torch_load(bad)
+    with pytest.raises(PvedError, match="not found"):
+        safe_torch_load(tmp_path / "missing.pt")
