@@ -67,5 +67,5 @@ class BatchedEnv(ABC):
             obs (N, obs_dim), reward (N,), terminated (N,) bool, truncated (N,) bool, info.
         """
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027  (optional hook, not abstract)
         """Release resources (renderers); the default holds none."""
