@@ -1,0 +1,962 @@
+"""Proximal Policy Optimisation (Schulman et al. 2017) over a :class:`BatchedEnv`.
+
+Every policy in pved is trained here (paper III.G): the source and target policies on
+the training tasks, the source policies on the target tasks, and the target agent's
+policy with the PVED shaping term (Eq. 10), which arrives as an ordinary reward from a
+wrapping ``BatchedEnv``.
+
+Read top to bottom:
+
+1. :class:`PPOConfig`: every hyper-parameter, frozen.
+2. :func:`compute_gae`: generalised advantage estimation, a pure function.
+3. :func:`ppo_loss` (torch, differentiable) and :func:`ppo_loss_grad` (numpy, the same
+   loss with its gradient in closed form): the clipped surrogate, value loss and entropy
+   bonus, pure functions.
+4. :class:`FlatAdam`: Adam over one flat parameter vector (torch's update rule).
+5. :func:`train_ppo`: rollouts with ONE policy forward for all N envs per step,
+   advantage estimation, epochs of shuffled minibatch updates, logging, checkpoints,
+   resume, evaluation.
+
+Conventions. T = ``steps_per_env``, N = ``num_envs``, B = a minibatch, A = action dim,
+O = observation dim. Episodes that end by truncation (time limit) are bootstrapped with
+V of ``info["final_obs"]``; episodes that terminate are not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, cast
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from pved import __version__
+from pved.envs.base import BatchedEnv
+from pved.errors import PvedError
+from pved.rl.networks import (
+    LOG_2PI,
+    ActorCritic,
+    FlatParams,
+    ObsNormalizer,
+    RunningMeanStd,
+    actor_critic_views,
+    check_activation,
+    mlp_backward_np,
+    mlp_forward_np,
+)
+from pved.rl.policy import Policy
+from pved.runs import Run, atomic_write_bytes, to_jsonable
+
+CHECKPOINT_FORMAT = "pved-ppo-checkpoint"
+BACKENDS = ("numpy", "torch")
+
+
+# ========================================================================================
+# 1. Configuration
+# ========================================================================================
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters. The defaults are the paper's networks (III.G: three hidden
+    layers of 64 with ReLU) with CleanRL's validated MuJoCo settings for the rest.
+
+    Attributes:
+        total_steps: env steps to train for (rounded up to whole updates).
+        num_envs: N, copies stepped together (must equal the env's ``num_envs``).
+        steps_per_env: T, rollout length per env; one update sees N·T transitions.
+        epochs: passes over each rollout.
+        minibatch_size: rows per gradient step (must divide N·T).
+        lr: Adam learning rate; ``anneal_lr`` decays it linearly to 0 over training.
+        adam_eps: Adam's epsilon (1e-5 as in Baselines/SB3/CleanRL, not torch's 1e-8).
+        gamma, gae_lambda: discount and GAE λ.
+        clip: ε of the clipped surrogate.
+        clip_value: if set, the value loss is max(unclipped, clipped) with the value
+            change clipped to ±clip_value (Baselines' PPO2); None: plain squared error.
+        ent_coef, vf_coef: weights of the entropy bonus and of the value loss
+            ``½·mean((V − R)²)``.
+        max_grad_norm: global gradient-norm clip.
+        target_kl: stop the update's remaining minibatches once a minibatch's approx-KL
+            exceeds 1.5·target_kl (Stable-Baselines3's rule); None disables.
+        normalize_advantage: standardise advantages per minibatch.
+        hidden_sizes, activation: actor and critic widths and hidden activation.
+        init_log_std: initial log standard deviation of the Gaussian policy.
+        normalize_obs, obs_clip: running mean/var observation normalisation (saved with
+            the policy) and the clip applied after it.
+        normalize_reward, reward_clip: scale rewards by the running std of the
+            discounted return (as Gymnasium's NormalizeReward), then clip.
+        seed: seeds the networks' initialisation, the action noise, the minibatch
+            shuffles and the env's reset.
+        checkpoint_every: env steps between checkpoints (0: none).
+        eval_every: env steps between ``eval_fn`` calls (0: only at the end).
+        backend: ``"numpy"`` (hand-written backward, fast) or ``"torch"`` (autograd);
+            both compute the same update.
+    """
+
+    total_steps: int = 1_000_000
+    num_envs: int = 16
+    steps_per_env: int = 128
+    epochs: int = 10
+    minibatch_size: int = 64
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    adam_eps: float = 1e-5
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip: float = 0.2
+    clip_value: float | None = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float | None = None
+    normalize_advantage: bool = True
+    hidden_sizes: tuple[int, ...] = (64, 64, 64)
+    activation: str = "relu"
+    init_log_std: float = 0.0
+    normalize_obs: bool = True
+    obs_clip: float = 10.0
+    normalize_reward: bool = True
+    reward_clip: float = 10.0
+    seed: int = 0
+    checkpoint_every: int = 100_000
+    eval_every: int = 0
+    backend: str = "numpy"
+
+    def __post_init__(self) -> None:
+        # accept lists (from JSON) for hidden sizes, keeping the dataclass hashable
+        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        positive = ("total_steps", "num_envs", "steps_per_env", "epochs", "minibatch_size")
+        for name in positive:
+            if int(getattr(self, name)) <= 0:
+                raise PvedError(f"PPOConfig.{name} must be positive, got {getattr(self, name)}")
+        if self.batch_size % self.minibatch_size != 0:
+            raise PvedError(
+                f"PPOConfig.minibatch_size {self.minibatch_size} must divide the batch "
+                f"num_envs*steps_per_env = {self.batch_size}"
+            )
+        if not (0.0 < self.gamma <= 1.0 and 0.0 <= self.gae_lambda <= 1.0):
+            raise PvedError(
+                f"PPOConfig needs 0<gamma<=1, 0<=gae_lambda<=1, got {self.gamma}, {self.gae_lambda}"
+            )
+        if self.lr <= 0 or self.clip <= 0 or self.max_grad_norm <= 0:
+            raise PvedError("PPOConfig.lr, clip and max_grad_norm must be positive")
+        if self.checkpoint_every < 0 or self.eval_every < 0:
+            raise PvedError("PPOConfig.checkpoint_every and eval_every must be >= 0")
+        if not self.hidden_sizes or min(self.hidden_sizes) <= 0:
+            raise PvedError(
+                f"PPOConfig.hidden_sizes must be positive widths, got {self.hidden_sizes}"
+            )
+        check_activation(self.activation)
+        if self.backend not in BACKENDS:
+            raise PvedError(f"PPOConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
+
+    @property
+    def batch_size(self) -> int:
+        """N·T transitions per update."""
+        return self.num_envs * self.steps_per_env
+
+    @property
+    def num_updates(self) -> int:
+        """Updates needed to reach ``total_steps``."""
+        return -(-self.total_steps // self.batch_size)
+
+    def to_dict(self) -> dict[str, Any]:
+        return cast(dict[str, Any], to_jsonable(self))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PPOConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise :class:`PvedError`."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise PvedError(f"unknown PPOConfig field(s): {', '.join(unknown)}")
+        return cls(**dict(data))
+
+
+# ========================================================================================
+# 2. Generalised advantage estimation
+# ========================================================================================
+
+
+def compute_gae(
+    rewards: np.ndarray,
+    values: np.ndarray,
+    dones: np.ndarray,
+    next_values: np.ndarray,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """GAE(γ, λ) advantages and λ-returns over a rollout.
+
+    ``δ_t = r_t + γ·V'_t − V(s_t)``, ``A_t = δ_t + γλ·(1 − done_t)·A_{t+1}``, where
+    ``V'_t`` is the value of the state that *followed* step t in its own episode: V of the
+    next observation, V of ``final_obs`` when the episode was truncated at t, and 0 when it
+    terminated at t. Passing next values explicitly is what makes truncated episodes
+    bootstrap correctly under same-step autoreset.
+
+    Args:
+        rewards: (T, N).
+        values: (T, N) V(s_t).
+        dones: (T, N) bool, the episode ended at step t (terminated or truncated): the
+            λ-recursion does not cross into the next episode.
+        next_values: (T, N) V'_t as above (0 where terminated).
+        gamma, gae_lambda: γ and λ.
+
+    Returns:
+        advantages (T, N) and returns = advantages + values (T, N), float64.
+    """
+    rewards = np.asarray(rewards, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    next_values = np.asarray(next_values, dtype=np.float64)
+    if not (rewards.shape == values.shape == next_values.shape == np.shape(dones)):
+        raise PvedError(
+            f"compute_gae needs equal (T, N) shapes, got rewards {rewards.shape}, values "
+            f"{values.shape}, dones {np.shape(dones)}, next_values {next_values.shape}"
+        )
+    continues = 1.0 - np.asarray(dones, dtype=np.float64)
+    deltas = rewards + gamma * next_values - values
+    advantages = np.zeros_like(rewards)
+    last = np.zeros(rewards.shape[1:], dtype=np.float64)
+    for t in range(rewards.shape[0] - 1, -1, -1):
+        last = deltas[t] + gamma * gae_lambda * continues[t] * last
+        advantages[t] = last
+    return advantages, advantages + values
+
+
+# ========================================================================================
+# 3. The PPO loss
+# ========================================================================================
+
+
+def gaussian_log_prob_np(actions: np.ndarray, mean: np.ndarray, log_std: np.ndarray) -> np.ndarray:
+    """log N(actions; mean, diag(exp(log_std))²): actions, mean (B, A); log_std (A,) → (B,)."""
+    diff = actions - mean
+    inv_var = np.exp(-2.0 * log_std)
+    out: np.ndarray = -0.5 * ((diff * diff) @ inv_var) - (
+        log_std.sum() + 0.5 * mean.shape[1] * LOG_2PI
+    )
+    return out
+
+
+def ppo_loss(
+    mean: torch.Tensor,
+    log_std: torch.Tensor,
+    values: torch.Tensor,
+    actions: torch.Tensor,
+    old_log_prob: torch.Tensor,
+    advantages: torch.Tensor,
+    returns: torch.Tensor,
+    old_values: torch.Tensor,
+    *,
+    clip: float,
+    clip_value: float | None,
+    ent_coef: float,
+    vf_coef: float,
+    normalize_advantage: bool = True,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """PPO's loss on one minibatch (differentiable).
+
+    ``L = −mean(min(ρ·Â, clip(ρ, 1−ε, 1+ε)·Â)) + vf_coef·½·mean((V − R)²) − ent_coef·H``
+    with ``ρ = π(a|s)/π_old(a|s)``, Â the (optionally standardised) advantages, and H the
+    Gaussian's entropy. With ``clip_value``, the value term is
+    ``½·mean(max((V − R)², (V_old + clip(V − V_old, ±clip_value) − R)²))``.
+
+    Args:
+        mean: (B, A) action means under the current parameters.
+        log_std: (A,) current log standard deviation.
+        values: (B,) current V(s).
+        actions: (B, A) the (unclipped) actions taken.
+        old_log_prob: (B,) their log-probability when taken.
+        advantages: (B,) GAE advantages.
+        returns: (B,) λ-returns (value targets).
+        old_values: (B,) V(s) when the rollout was collected.
+
+    Returns:
+        (scalar loss, stats) with stats ``policy_loss``, ``value_loss``, ``entropy``,
+        ``approx_kl`` (the k3 estimator E[(ρ − 1) − log ρ]) and ``clip_fraction``
+        (detached scalars).
+    """
+    act_dim = mean.shape[1]
+    diff = actions - mean
+    log_prob = -0.5 * (diff * diff * torch.exp(-2.0 * log_std)).sum(dim=1) - (
+        log_std.sum() + 0.5 * act_dim * LOG_2PI
+    )
+    log_ratio = log_prob - old_log_prob
+    ratio = torch.exp(log_ratio)
+    if normalize_advantage and advantages.shape[0] > 1:
+        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    surrogate = torch.min(advantages * ratio, advantages * ratio.clamp(1.0 - clip, 1.0 + clip))
+    policy_loss = -surrogate.mean()
+    sq = (values - returns) ** 2
+    if clip_value is not None:
+        clipped = old_values + (values - old_values).clamp(-clip_value, clip_value)
+        sq = torch.max(sq, (clipped - returns) ** 2)
+    value_loss = 0.5 * sq.mean()
+    entropy = log_std.sum() + 0.5 * act_dim * (1.0 + LOG_2PI)
+    loss = policy_loss + vf_coef * value_loss - ent_coef * entropy
+    with torch.no_grad():
+        stats = {
+            "policy_loss": policy_loss.detach(),
+            "value_loss": value_loss.detach(),
+            "entropy": entropy.detach(),
+            "approx_kl": ((ratio - 1.0) - log_ratio).mean(),
+            "clip_fraction": ((ratio - 1.0).abs() > clip).float().mean(),
+        }
+    return loss, stats
+
+
+def ppo_loss_grad(
+    mean: np.ndarray,
+    log_std: np.ndarray,
+    values: np.ndarray,
+    actions: np.ndarray,
+    old_log_prob: np.ndarray,
+    advantages: np.ndarray,
+    returns: np.ndarray,
+    old_values: np.ndarray,
+    *,
+    clip: float,
+    clip_value: float | None,
+    ent_coef: float,
+    vf_coef: float,
+    normalize_advantage: bool = True,
+) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`ppo_loss` and its gradient in closed form (numpy, float32 in and out).
+
+    Same arguments and shapes as :func:`ppo_loss`. The derivative of the clipped
+    surrogate w.r.t. log π is ``−Â·ρ/B`` where the unclipped term is the minimum (ties
+    included) and 0 where clipping is active; chained through the Gaussian log-density
+    this gives ``dL/dmean = g·(a − μ)/σ²`` and ``dL/dlog_std = Σ_b g·((a − μ)²/σ² − 1)``.
+
+    Returns:
+        (stats as floats, incl. ``loss``; dL/dmean (B, A); dL/dlog_std (A,);
+        dL/dvalues (B,)).
+    """
+    batch, act_dim = mean.shape
+    diff = actions - mean
+    inv_var = np.exp(-2.0 * log_std)
+    z2 = diff * diff
+    log_prob = -0.5 * (z2 @ inv_var) - (log_std.sum() + 0.5 * act_dim * LOG_2PI)
+    log_ratio = log_prob - old_log_prob
+    ratio = np.exp(log_ratio)
+    if normalize_advantage and batch > 1:
+        advantages = (advantages - advantages.mean()) / (advantages.std(ddof=1) + 1e-8)
+    surr1 = advantages * ratio
+    surr2 = advantages * np.clip(ratio, 1.0 - clip, 1.0 + clip)
+    unclipped = surr1 <= surr2
+    policy_loss = -float(np.where(unclipped, surr1, surr2).mean())
+    # policy gradient through log π
+    g = (surr1 * unclipped) * np.float32(-1.0 / batch)
+    d_mean = (g[:, None] * diff) * inv_var
+    d_log_std = (g @ (z2 * inv_var)) - g.sum() - np.float32(ent_coef)
+    # value loss
+    err = values - returns
+    if clip_value is None:
+        value_loss = 0.5 * float(np.dot(err, err)) / batch
+        d_values = err * np.float32(vf_coef / batch)
+    else:
+        delta = values - old_values
+        clipped_err = old_values + np.clip(delta, -clip_value, clip_value) - returns
+        sq, sq_c = err * err, clipped_err * clipped_err
+        use_plain = sq >= sq_c
+        value_loss = 0.5 * float(np.where(use_plain, sq, sq_c).mean())
+        inside = np.abs(delta) <= clip_value
+        d_values = np.where(use_plain, err, clipped_err * inside) * np.float32(vf_coef / batch)
+    entropy = float(log_std.sum()) + 0.5 * act_dim * (1.0 + LOG_2PI)
+    stats = {
+        "loss": policy_loss + vf_coef * value_loss - ent_coef * entropy,
+        "policy_loss": policy_loss,
+        "value_loss": value_loss,
+        "entropy": entropy,
+        "approx_kl": float(((ratio - 1.0) - log_ratio).mean()),
+        "clip_fraction": float((np.abs(ratio - 1.0) > clip).mean()),
+    }
+    return (
+        stats,
+        d_mean.astype(np.float32, copy=False),
+        d_log_std.astype(np.float32, copy=False),
+        d_values.astype(np.float32, copy=False),
+    )
+
+
+# ========================================================================================
+# 4. Optimiser and gradient clipping over one flat vector
+# ========================================================================================
+
+
+class FlatAdam:
+    """Adam (Kingma & Ba) on a flat float32 vector, with torch.optim.Adam's exact update
+    (bias-corrected step size, ε added to the bias-corrected √v). One set of vector ops
+    per step instead of a dozen per-tensor ones."""
+
+    def __init__(self, size: int, eps: float, betas: tuple[float, float] = (0.9, 0.999)) -> None:
+        self.m = np.zeros(size, dtype=np.float32)
+        self.v = np.zeros(size, dtype=np.float32)
+        self.t = 0
+        self.eps = float(eps)
+        self.beta1, self.beta2 = betas
+        self._tmp = np.zeros(size, dtype=np.float32)
+
+    def step(self, params: np.ndarray, grads: np.ndarray, lr: float) -> None:
+        """params, grads: (P,) float32; params updated in place."""
+        self.t += 1
+        b1, b2, tmp = self.beta1, self.beta2, self._tmp
+        self.m += (grads - self.m) * np.float32(1.0 - b1)  # torch: exp_avg.lerp_(grad, 1-b1)
+        self.v *= np.float32(b2)
+        np.multiply(grads, grads, out=tmp)
+        tmp *= np.float32(1.0 - b2)
+        self.v += tmp
+        bias1 = 1.0 - b1**self.t
+        bias2_sqrt = math.sqrt(1.0 - b2**self.t)
+        np.sqrt(self.v, out=tmp)
+        tmp /= np.float32(bias2_sqrt)
+        tmp += np.float32(self.eps)
+        np.divide(self.m, tmp, out=tmp)
+        tmp *= np.float32(-lr / bias1)
+        params += tmp
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "m": torch.from_numpy(self.m.copy()),
+            "v": torch.from_numpy(self.v.copy()),
+            "t": self.t,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        m, v = state["m"].numpy(), state["v"].numpy()
+        if m.shape != self.m.shape or v.shape != self.v.shape:
+            raise PvedError(
+                f"optimizer state has {m.shape[0]} entries, the networks {self.m.shape[0]}"
+            )
+        self.m[...] = m
+        self.v[...] = v
+        self.t = int(state["t"])
+
+
+def clip_grad_norm_np(grads: np.ndarray, max_norm: float) -> float:
+    """Scale ``grads`` (P,) in place to global norm ≤ max_norm (torch's rule, including
+    its 1e-6); returns the norm before clipping."""
+    norm = math.sqrt(float(np.dot(grads, grads)))
+    coef = max_norm / (norm + 1e-6)
+    if coef < 1.0:
+        grads *= np.float32(coef)
+    return norm
+
+
+# ========================================================================================
+# 5. Training
+# ========================================================================================
+
+
+EvalFn = Callable[[Policy, int], Mapping[str, float]]
+
+
+def _env_state_api(env: BatchedEnv) -> tuple[Callable[[], Any], Callable[[Any], None]] | None:
+    """The env's optional exact save/restore pair.
+
+    A BatchedEnv that can capture everything its future depends on (MuJoCo integration
+    state incl. warm start, step counters, per-copy generators) exposes
+    ``state_dict() -> dict`` (numpy arrays and plain data) and ``load_state_dict(dict)``;
+    PPO checkpoints then resume bit-exactly. Wrappers should forward both.
+    """
+    save = getattr(env, "state_dict", None)
+    load = getattr(env, "load_state_dict", None)
+    if callable(save) and callable(load):
+        return save, load
+    return None
+
+
+def _to_saveable(obj: Any) -> Any:
+    """numpy arrays → tensors (recursively) so a state loads with weights_only=True."""
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(obj).copy())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Mapping):
+        return {k: _to_saveable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return type(obj)(_to_saveable(v) for v in obj)
+    return obj
+
+
+def _from_saveable(obj: Any) -> Any:
+    """Inverse of :func:`_to_saveable` (tensors → numpy arrays)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.numpy().copy()
+    if isinstance(obj, Mapping):
+        return {k: _from_saveable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return type(obj)(_from_saveable(v) for v in obj)
+    return obj
+
+
+class _Trainer:
+    """The mutable state of one PPO run and the steps that advance it. Kept as one
+    object so that checkpoints capture *all* of it (resuming is then bit-exact for envs
+    that can save their state)."""
+
+    def __init__(self, env: BatchedEnv, config: PPOConfig) -> None:
+        self.env, self.cfg = env, config
+        obs_space, act_space = env.single_observation_space, env.single_action_space
+        if len(obs_space.shape or ()) != 1 or len(act_space.shape or ()) != 1:
+            raise PvedError("PPO needs flat Box observation and action spaces")
+        if env.num_envs != config.num_envs:
+            raise PvedError(
+                f"PPOConfig.num_envs is {config.num_envs} but the env has {env.num_envs} copies"
+            )
+        self.obs_dim = int(obs_space.shape[0])
+        self.act_dim = int(act_space.shape[0])
+        self.low = np.asarray(act_space.low, dtype=np.float64)
+        self.high = np.asarray(act_space.high, dtype=np.float64)
+        if not (np.all(np.isfinite(self.low)) and np.all(np.isfinite(self.high))):
+            raise PvedError("PPO needs a bounded action space (finite low and high)")
+
+        self.net = ActorCritic(
+            self.obs_dim, self.act_dim, config.hidden_sizes, config.activation, config.init_log_std
+        )
+        self.net.init_weights(config.seed)
+        self.flat = FlatParams(self.net.ordered_parameters())
+        # numpy views of the parameters and of their gradients, layer by layer
+        self.actor, self.critic, self.log_std = actor_critic_views(self.flat.params_np, self.net)
+        self.actor_g, self.critic_g, self.log_std_g = actor_critic_views(
+            self.flat.grads_np, self.net
+        )
+        self.adam = FlatAdam(self.flat.flat_np.size, config.adam_eps)
+        self.obs_norm = ObsNormalizer(self.obs_dim, config.normalize_obs, config.obs_clip)
+        self.ret_rms = RunningMeanStd(())
+        self.ret_acc = np.zeros(config.num_envs, dtype=np.float64)
+        self.rng = np.random.default_rng(config.seed)
+        self.global_step = 0
+        self.update = 0
+        self.elapsed = 0.0
+        self.ep_ret = np.zeros(config.num_envs, dtype=np.float64)
+        self.ep_len = np.zeros(config.num_envs, dtype=np.int64)
+        self.obs = np.zeros((config.num_envs, self.obs_dim), dtype=np.float64)
+        self.next_checkpoint = config.checkpoint_every
+        self.next_eval = 0
+        self.policy = Policy(self.net, self.obs_norm, self.low, self.high, {"seed": config.seed})
+
+        T, N, A = config.steps_per_env, config.num_envs, self.act_dim
+        self.buf_obs = np.zeros((T, N, self.obs_dim), dtype=np.float32)
+        self.buf_act = np.zeros((T, N, A), dtype=np.float32)
+        self.buf_logp = np.zeros((T, N), dtype=np.float32)
+        self.buf_val = np.zeros((T, N), dtype=np.float32)
+        self.buf_rew = np.zeros((T, N), dtype=np.float64)
+        self.buf_done = np.zeros((T, N), dtype=bool)
+        self.buf_term = np.zeros((T, N), dtype=bool)
+        self.buf_boot = np.zeros((T, N), dtype=np.float32)
+        self.buf_trunc = np.zeros((T, N), dtype=bool)
+
+    # -- start / checkpoint ----------------------------------------------------------
+    def reset_env(self, seed: int) -> None:
+        obs, _ = self.env.reset(seed=seed)
+        self.obs = np.asarray(obs, dtype=np.float64)
+        self.obs_norm.update(self.obs)
+
+    def state_dict(self) -> dict[str, Any]:
+        env_state = _env_state_api(self.env)
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "config": self.cfg.to_dict(),
+            "pved_version": __version__,
+            "global_step": self.global_step,
+            "update": self.update,
+            "elapsed": self.elapsed,
+            "params": self.flat.flat.clone(),
+            "adam": self.adam.state_dict(),
+            "obs_norm": self.obs_norm.state_dict(),
+            "ret_rms": {
+                "mean": float(self.ret_rms.mean),
+                "var": float(self.ret_rms.var),
+                "count": self.ret_rms.count,
+            },
+            "ret_acc": torch.from_numpy(self.ret_acc.copy()),
+            "rng": self.rng.bit_generator.state,
+            "obs": torch.from_numpy(self.obs.copy()),
+            "ep_ret": torch.from_numpy(self.ep_ret.copy()),
+            "ep_len": torch.from_numpy(self.ep_len.copy()),
+            "next_checkpoint": self.next_checkpoint,
+            "next_eval": self.next_eval,
+            "env_state": _to_saveable(env_state[0]()) if env_state else None,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise PvedError("the run's checkpoint is not a pved PPO checkpoint")
+        if state.get("config") != self.cfg.to_dict():
+            raise PvedError(
+                "the run's checkpoint was written with a different PPOConfig; "
+                "use a new run directory"
+            )
+        params = cast(torch.Tensor, state["params"])
+        if params.shape != self.flat.flat.shape:
+            raise PvedError("the checkpoint's networks do not match this env's dimensions")
+        self.flat.flat.copy_(params)
+        self.adam.load_state_dict(state["adam"])
+        self.obs_norm.load_state_dict(dict(state["obs_norm"]))
+        self.ret_rms.mean = np.asarray(state["ret_rms"]["mean"], dtype=np.float64)
+        self.ret_rms.var = np.asarray(state["ret_rms"]["var"], dtype=np.float64)
+        self.ret_rms.count = float(state["ret_rms"]["count"])
+        self.ret_acc = state["ret_acc"].numpy().copy()
+        self.rng.bit_generator.state = state["rng"]
+        self.ep_ret = state["ep_ret"].numpy().copy()
+        self.ep_len = state["ep_len"].numpy().copy()
+        self.global_step = int(state["global_step"])
+        self.update = int(state["update"])
+        self.elapsed = float(state["elapsed"])
+        self.next_checkpoint = int(state["next_checkpoint"])
+        self.next_eval = int(state["next_eval"])
+        env_state = _env_state_api(self.env)
+        if state.get("env_state") is not None and env_state:
+            env_state[1](_from_saveable(state["env_state"]))
+            self.obs = state["obs"].numpy().copy()
+        else:
+            # The env cannot restore its episodes: start fresh ones, seeded by the update
+            # index so the resumed run is still reproducible (but not identical to an
+            # uninterrupted one).
+            warnings.warn(
+                f"{type(self.env).__name__} has no state_dict/load_state_dict: resuming PPO with "
+                "freshly reset episodes, so the result will differ from an uninterrupted run",
+                stacklevel=3,
+            )
+            self.reset_env(self.cfg.seed + 1_000_003 * self.update)
+            self.ep_ret[:] = 0.0
+            self.ep_len[:] = 0
+            self.ret_acc[:] = 0.0
+
+    # -- rollout ---------------------------------------------------------------------
+    def _forward(self, obs_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """obs_n (N, O) normalised → (mean (N, A), value (N,)): one forward for all envs."""
+        mean, _ = mlp_forward_np(obs_n, self.actor, self.cfg.activation)
+        value, _ = mlp_forward_np(obs_n, self.critic, self.cfg.activation)
+        return mean, value[:, 0]
+
+    def _value(self, obs_n: np.ndarray) -> np.ndarray:
+        value, _ = mlp_forward_np(obs_n, self.critic, self.cfg.activation)
+        return value[:, 0]
+
+    def rollout(self) -> dict[str, list[float]]:
+        """Collect T steps from all N envs into the buffers; returns finished episodes'
+        returns, lengths and successes."""
+        cfg = self.cfg
+        episodes: dict[str, list[float]] = {"return": [], "length": [], "success": []}
+        std = np.exp(self.log_std)
+        self.buf_trunc[:] = False
+        for t in range(cfg.steps_per_env):
+            obs_n = self.obs_norm(self.obs)
+            mean, value = self._forward(obs_n)
+            noise = self.rng.standard_normal(mean.shape, dtype=np.float32)
+            action = mean + std * noise
+            self.buf_obs[t] = obs_n
+            self.buf_act[t] = action
+            self.buf_logp[t] = gaussian_log_prob_np(action, mean, self.log_std)
+            self.buf_val[t] = value
+
+            next_obs, reward, terminated, truncated, info = self.env.step(
+                np.clip(action.astype(np.float64), self.low, self.high)
+            )
+            reward = np.asarray(reward, dtype=np.float64)
+            terminated = np.asarray(terminated, dtype=bool)
+            done = terminated | np.asarray(truncated, dtype=bool)
+            self.obs = np.asarray(next_obs, dtype=np.float64)
+
+            # episode statistics on the raw env reward
+            self.ep_ret += reward
+            self.ep_len += 1
+            if done.any():
+                idx = np.flatnonzero(done)
+                episodes["return"].extend(self.ep_ret[idx].tolist())
+                episodes["length"].extend(self.ep_len[idx].tolist())
+                if "is_success" in info:
+                    episodes["success"].extend(
+                        np.asarray(info["is_success"], dtype=np.float64)[idx].tolist()
+                    )
+                self.ep_ret[idx] = 0.0
+                self.ep_len[idx] = 0
+
+            if cfg.normalize_reward:
+                self.ret_acc = self.ret_acc * cfg.gamma + reward
+                self.ret_rms.update(self.ret_acc)
+                reward = np.clip(
+                    reward / math.sqrt(float(self.ret_rms.var) + 1e-8),
+                    -cfg.reward_clip,
+                    cfg.reward_clip,
+                )
+                self.ret_acc[done] = 0.0
+            self.buf_rew[t] = reward
+            self.buf_done[t] = done
+            self.buf_term[t] = terminated
+            self.obs_norm.update(self.obs)
+
+            # truncated (not terminated) episodes bootstrap from V(final_obs)
+            boot = done & ~terminated
+            if boot.any():
+                idx = np.flatnonzero(boot)
+                final = np.asarray(info["final_obs"], dtype=np.float64)[idx]
+                self.buf_boot[t, idx] = self._value(self.obs_norm(final))
+                self.buf_trunc[t, idx] = True
+        self.global_step += cfg.batch_size
+        return episodes
+
+    def advantages(self) -> tuple[np.ndarray, np.ndarray]:
+        """GAE over the buffers → advantages, returns (T, N)."""
+        last_value = self._value(self.obs_norm(self.obs))
+        next_values = np.concatenate([self.buf_val[1:], last_value[None]], axis=0)
+        next_values = np.where(self.buf_trunc, self.buf_boot, next_values)
+        next_values[self.buf_term] = 0.0
+        return compute_gae(
+            self.buf_rew,
+            self.buf_val,
+            self.buf_done,
+            next_values,
+            self.cfg.gamma,
+            self.cfg.gae_lambda,
+        )
+
+    # -- update ----------------------------------------------------------------------
+    def _grad_numpy(
+        self,
+        obs: np.ndarray,
+        act: np.ndarray,
+        logp: np.ndarray,
+        adv: np.ndarray,
+        ret: np.ndarray,
+        val: np.ndarray,
+    ) -> dict[str, float]:
+        cfg = self.cfg
+        mean, a_hidden = mlp_forward_np(obs, self.actor, cfg.activation)
+        value, c_hidden = mlp_forward_np(obs, self.critic, cfg.activation)
+        stats, d_mean, d_log_std, d_value = ppo_loss_grad(
+            mean, self.log_std, value[:, 0], act, logp, adv, ret, val,
+            clip=cfg.clip, clip_value=cfg.clip_value, ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
+        )  # fmt: skip
+        mlp_backward_np(obs, a_hidden, d_mean, self.actor, self.actor_g, cfg.activation)
+        mlp_backward_np(obs, c_hidden, d_value[:, None], self.critic, self.critic_g, cfg.activation)
+        self.log_std_g[...] = d_log_std
+        return stats
+
+    def _grad_torch(
+        self,
+        obs: np.ndarray,
+        act: np.ndarray,
+        logp: np.ndarray,
+        adv: np.ndarray,
+        ret: np.ndarray,
+        val: np.ndarray,
+    ) -> dict[str, float]:
+        cfg = self.cfg
+        t = torch.from_numpy
+        mean, value = self.net(t(obs))
+        loss, st = ppo_loss(
+            mean, self.net.log_std, value, t(act), t(logp), t(adv), t(ret), t(val),
+            clip=cfg.clip, clip_value=cfg.clip_value, ent_coef=cfg.ent_coef,
+            vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
+        )  # fmt: skip
+        self.net.zero_grad(set_to_none=True)
+        loss.backward()
+        self.flat.grads_from_torch()
+        return {"loss": float(loss.detach()), **{k: float(v) for k, v in st.items()}}
+
+    def learn(self, advantages: np.ndarray, returns: np.ndarray) -> dict[str, float]:
+        """``epochs`` passes of shuffled minibatch steps over the rollout."""
+        cfg = self.cfg
+        lr = cfg.lr * (1.0 - self.update / cfg.num_updates) if cfg.anneal_lr else cfg.lr
+        n = cfg.batch_size
+        data = (
+            self.buf_obs.reshape(n, self.obs_dim),
+            self.buf_act.reshape(n, self.act_dim),
+            self.buf_logp.reshape(n),
+            advantages.reshape(n).astype(np.float32),
+            returns.reshape(n).astype(np.float32),
+            self.buf_val.reshape(n),
+        )
+        grad_fn = self._grad_numpy if cfg.backend == "numpy" else self._grad_torch
+        sums: dict[str, float] = {}
+        steps = 0
+        stop = False
+        for _ in range(cfg.epochs):
+            # one permutation per epoch, applied once; minibatches are then slices
+            perm = self.rng.permutation(n)
+            shuffled = [x[perm] for x in data]
+            for start in range(0, n, cfg.minibatch_size):
+                mb = [x[start : start + cfg.minibatch_size] for x in shuffled]
+                stats = grad_fn(*mb)
+                if not math.isfinite(stats["loss"]):
+                    raise PvedError(f"NaN/inf in PPO loss at update {self.update + 1}")
+                if cfg.target_kl is not None and stats["approx_kl"] > 1.5 * cfg.target_kl:
+                    stop = True
+                    break
+                norm = clip_grad_norm_np(self.flat.grad_np, cfg.max_grad_norm)
+                if not math.isfinite(norm):
+                    raise PvedError(f"NaN/inf in PPO gradient at update {self.update + 1}")
+                self.adam.step(self.flat.flat_np, self.flat.grad_np, lr)
+                stats["grad_norm"] = norm
+                for k, v in stats.items():
+                    sums[k] = sums.get(k, 0.0) + v
+                steps += 1
+            if stop:
+                break
+        self.update += 1
+        out = {k: v / max(steps, 1) for k, v in sums.items()}
+        values, rets = self.buf_val.reshape(-1), returns.reshape(-1)
+        var_ret = float(np.var(rets))
+        out["explained_variance"] = (
+            float("nan") if var_ret == 0 else 1.0 - float(np.var(rets - values)) / var_ret
+        )
+        out["lr"] = lr
+        out["minibatch_steps"] = float(steps)
+        out["std_mean"] = float(np.exp(self.log_std).mean())
+        return out
+
+
+def _drop_metrics_after(run: Run, step: int) -> None:
+    """On resume, forget ``metrics.jsonl`` records that an interrupted run logged after
+    its last checkpoint: the resumed run logs those steps again, and learning curves
+    must not count them twice. (TensorBoard events are append-only and keep both.)"""
+    path = run.path / "metrics.jsonl"
+    records = run.read_metrics()
+    kept = [r for r in records if int(r.get("step", 0)) <= step]
+    if len(kept) != len(records):
+        atomic_write_bytes(path, "".join(json.dumps(r) + "\n" for r in kept).encode())
+
+
+def train_ppo(
+    env: BatchedEnv,
+    config: PPOConfig,
+    run: Run | None = None,
+    *,
+    eval_fn: EvalFn | None = None,
+    progress: bool = True,
+    env_id: str | None = None,
+) -> Policy:
+    """Train a Gaussian actor-critic with PPO on ``env`` and return the policy.
+
+    Each update collects ``steps_per_env`` steps from every copy of ``env`` (one policy
+    forward for all copies per step), computes GAE with truncation bootstrapping, and runs
+    ``epochs`` passes of minibatch steps on the clipped objective.
+
+    With a ``run``: ``run.start()`` is called, training resumes from
+    ``run.latest_checkpoint()`` if there is one, every update logs its episode statistics
+    (``episode/return_mean``, ``episode/length_mean``, ``episode/success_rate`` when the
+    env reports ``is_success``), losses, approx-KL, clip fraction and steps/s to
+    ``run.log``; a full checkpoint (networks, optimiser, normalisers, RNG, env state when
+    the env has ``state_dict``/``load_state_dict``, step counter) is saved every
+    ``checkpoint_every`` env steps; the final policy is saved to
+    ``run.path / "policy.pt"``. ``result.json`` is left to the caller.
+
+    Args:
+        env: any BatchedEnv with flat Box spaces and ``num_envs == config.num_envs``.
+        config: hyper-parameters.
+        run: the stage's run directory, or None for no files.
+        eval_fn: called as ``eval_fn(policy, env_steps)`` at step 0, every
+            ``eval_every`` env steps and at the end; its floats are logged under
+            ``eval/`` (keys already starting with ``eval/`` are kept as they are).
+            It must not step ``env`` (use its own env) so that training stays
+            reproducible.
+        progress: show a tqdm progress bar.
+        env_id: name stored in the policy's metadata (default: the env's ``env_id``
+            attribute or class name).
+
+    Returns:
+        The trained :class:`Policy` (with its observation normaliser).
+
+    Raises:
+        PvedError: bad config/env, a checkpoint from another config, or NaN/inf in the
+            loss ("NaN/inf in PPO loss at update k").
+    """
+    torch.set_num_threads(1)
+    trainer = _Trainer(env, config)
+    state = None
+    if run is not None:
+        run.start()
+        state = run.latest_checkpoint()
+    if state is not None:
+        trainer.load_state_dict(state)
+        assert run is not None
+        _drop_metrics_after(run, trainer.global_step)
+    else:
+        trainer.reset_env(config.seed)
+
+    name = env_id or str(getattr(env, "env_id", type(env).__name__))
+    policy = trainer.policy
+    policy.metadata.update(env_id=name, seed=config.seed, ppo_config=config.to_dict())
+    total = config.num_updates * config.batch_size
+    bar = tqdm(
+        total=total,
+        initial=trainer.global_step,
+        unit="step",
+        disable=not progress,
+        dynamic_ncols=True,
+        desc="PPO",
+    )
+
+    def maybe_eval(final: bool) -> None:
+        if eval_fn is None:
+            return
+        due = trainer.global_step >= trainer.next_eval
+        if not (due or final):
+            return
+        if due:
+            interval = config.eval_every if config.eval_every > 0 else total + 1
+            while trainer.next_eval <= trainer.global_step:
+                trainer.next_eval += interval
+        policy.metadata["training_steps"] = trainer.global_step
+        raw = dict(eval_fn(policy, trainer.global_step))
+        result = {k if k.startswith("eval/") else f"eval/{k}": float(v) for k, v in raw.items()}
+        if run is not None and result:
+            run.log(trainer.global_step, **result)
+
+    try:
+        if trainer.global_step == 0:
+            maybe_eval(final=False)
+        while trainer.update < config.num_updates:
+            t0 = time.perf_counter()
+            episodes = trainer.rollout()
+            advantages, returns = trainer.advantages()
+            stats = trainer.learn(advantages, returns)
+            dt = time.perf_counter() - t0
+            trainer.elapsed += dt
+
+            scalars = {f"loss/{k}": v for k, v in stats.items()}
+            scalars["time/steps_per_s"] = config.batch_size / dt
+            scalars["time/steps_per_s_mean"] = trainer.global_step / max(trainer.elapsed, 1e-9)
+            if episodes["return"]:
+                scalars["episode/return_mean"] = float(np.mean(episodes["return"]))
+                scalars["episode/length_mean"] = float(np.mean(episodes["length"]))
+                scalars["episode/count"] = float(len(episodes["return"]))
+                bar.set_postfix(ret=f"{scalars['episode/return_mean']:.1f}", refresh=False)
+            if episodes["success"]:
+                scalars["episode/success_rate"] = float(np.mean(episodes["success"]))
+            if run is not None:
+                run.log(trainer.global_step, **scalars)
+            bar.update(config.batch_size)
+
+            last = trainer.update >= config.num_updates
+            if not last:
+                maybe_eval(final=False)
+            if (
+                run is not None
+                and config.checkpoint_every > 0
+                and trainer.global_step >= trainer.next_checkpoint
+            ):
+                while trainer.next_checkpoint <= trainer.global_step:
+                    trainer.next_checkpoint += config.checkpoint_every
+                run.save_checkpoint(trainer.global_step, trainer.state_dict())
+        maybe_eval(final=True)
+    finally:
+        bar.close()
+
+    policy.metadata.update(
+        training_steps=trainer.global_step, obs_dim=trainer.obs_dim, act_dim=trainer.act_dim
+    )
+    if run is not None:
+        policy.save(run.path / "policy.pt")
+    return policy
