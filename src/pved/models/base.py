@@ -73,7 +73,9 @@ def config_from_dict(cls: type[ModelConfig], values: dict[str, Any]) -> ModelCon
     if unknown:
         raise PvedError(f"{cls.__name__} has no field(s) {', '.join(unknown)}")
     # JSON and torch round trips turn tuples into lists; frozen configs keep tuples.
-    clean = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+    clean: dict[str, Any] = {
+        k: tuple(v) if isinstance(v, list) else v for k, v in values.items()
+    }
     return cls(**clean)
 
 
@@ -148,8 +150,12 @@ class Standardizer(nn.Module):
         self.std.copy_(std.to(self.std.dtype))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(B, D) raw -> (B, D) standardised, in the buffers' dtype (float64 input is fine)."""
-        return (x.to(self.mean.dtype) - self.mean) / self.std
+        """(B, D) raw -> (B, D) standardised, in the buffers' dtype. The offset is removed
+        in the input's own dtype first, so float64 inputs with large offsets keep their
+        precision."""
+        if x.dtype != self.mean.dtype:
+            return ((x - self.mean.to(x.dtype)) / self.std.to(x.dtype)).to(self.mean.dtype)
+        return (x - self.mean) / self.std
 
     def inverse(self, z: torch.Tensor) -> torch.Tensor:
         """(B, D) standardised -> (B, D) raw."""
@@ -176,8 +182,32 @@ class SharedSpaceModel(nn.Module, abc.ABC):
             )
         self.dims = dims
         self.config = config
+        #: Plain facts about this model (pair, dataset, seed...): written by
+        #: :func:`pved.models.save_model`, restored by :func:`pved.models.load_model`.
+        self.metadata: dict[str, Any] = {}
         self.source_norm = Standardizer(dims.source_dim)
         self.target_norm = Standardizer(dims.target_dim)
+
+    # -- layout ------------------------------------------------------------------------
+    @property
+    def source_dim(self) -> int:
+        """D_S, the length of a source row ``concat(s_S, a_S)``."""
+        return self.dims.source_dim
+
+    @property
+    def target_dim(self) -> int:
+        """D_T, the length of a target row ``concat(s_T, a_T)``."""
+        return self.dims.target_dim
+
+    @property
+    def source_state_dim(self) -> int:
+        """How many leading entries of a source row are the robot state s_S."""
+        return self.dims.source_state_dim
+
+    @property
+    def target_state_dim(self) -> int:
+        """How many leading entries of a target row are the robot state s_T."""
+        return self.dims.target_state_dim
 
     # -- standardisation ---------------------------------------------------------------
     def fit_standardization(self, x_S: torch.Tensor, x_T: torch.Tensor) -> None:
@@ -235,8 +265,9 @@ class SharedSpaceModel(nn.Module, abc.ABC):
         """The target's individual representation (B, K_y), or None for models without one."""
         return None
 
-    def metadata(self) -> dict[str, Any]:
-        """What is needed to rebuild this model before loading its state dict."""
+    def spec(self) -> dict[str, Any]:
+        """What is needed to rebuild this model before loading its state dict: registry
+        name, dims and config, as plain values."""
         return {
             "name": self.name,
             "dims": self.dims.as_dict(),

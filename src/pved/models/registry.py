@@ -16,8 +16,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from pved.errors import PvedError
 from pved.models.base import ModelConfig, ModelDims, SharedSpaceModel, config_from_dict
 from pved.models.pved import PVED
@@ -60,14 +58,15 @@ def save_model(
     model: SharedSpaceModel, path: Path | str, metadata: dict[str, Any] | None = None
 ) -> Path:
     """Atomically write ``model`` (weights, standardisation, dims, config) and plain
-    ``metadata`` (e.g. dataset header, training result) to ``path``; returns the path."""
+    metadata (e.g. pair, dataset, seed) to ``path``; returns the path. The metadata saved
+    is ``model.metadata`` updated with ``metadata``."""
     path = Path(path)
     payload = {
         "format": MODEL_FORMAT,
         "format_version": MODEL_FORMAT_VERSION,
-        **model.metadata(),
+        **model.spec(),
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
-        "metadata": to_jsonable(metadata or {}),
+        "metadata": to_jsonable({**model.metadata, **(metadata or {})}),
     }
     atomic_torch_save(path, payload)
     return path
@@ -76,7 +75,7 @@ def save_model(
 def load_model(path: Path | str, expected_dims: ModelDims | None = None) -> SharedSpaceModel:
     """Load a model written by :func:`save_model`, without executing code, in eval mode.
 
-    The file's ``metadata`` is on ``model.file_metadata``. A missing, corrupt or foreign
+    The file's metadata is on ``model.metadata``. A missing, corrupt or foreign
     file, a file whose weights do not fit its own dims, or (when given) ``expected_dims``
     that differ from the file's raise :class:`PvedError` naming the problem.
     """
@@ -98,15 +97,19 @@ def load_model(path: Path | str, expected_dims: ModelDims | None = None) -> Shar
     except TypeError as exc:
         raise PvedError(f"{path}: bad dims entry ({exc})") from None
     if expected_dims is not None and dims != expected_dims:
-        raise PvedError(f"{path}: model dims {dims.as_dict()} != expected {expected_dims.as_dict()}")
+        raise PvedError(
+            f"{path}: model dims {dims.as_dict()} != expected {expected_dims.as_dict()}"
+        )
     config = config_from_dict(cls.config_class, dict(payload["config"]))
     model = cls(dims, config)
     try:
         model.load_state_dict(payload["state_dict"], strict=True)
     except (RuntimeError, TypeError, AttributeError) as exc:
         detail = " ".join(str(exc).split())[:200]
-        raise PvedError(f"{path}: weights do not fit model {cls.name!r} {dims.as_dict()}: {detail}") from None
-    model.file_metadata = dict(payload.get("metadata") or {})
+        raise PvedError(
+            f"{path}: weights do not fit model {cls.name!r} {dims.as_dict()}: {detail}"
+        ) from None
+    model.metadata = dict(payload.get("metadata") or {})
     model.eval()
     return model
 
@@ -118,7 +121,3 @@ __all__ = [
     "model_class",
     "save_model",
 ]
-
-
-def _unused(_: torch.Tensor) -> None:  # pragma: no cover - keeps torch import typed
-    pass
