@@ -35,8 +35,13 @@ def _dataset(rows: int = 12) -> PairedDataset:
         t_source=np.tile(np.arange(4), rows // 4),
         t_target=np.tile(np.arange(4), rows // 4),
         task={"target": rng.normal(size=(rows // 4, 2))},
-        header={"pair": "reacher", "source_agent": "Reacher3", "target_agent": "Reacher4",
-                "robot_state_indices_source": [0, 1, 2], "robot_state_indices_target": [0, 2, 4, 6]},
+        header={
+            "pair": "reacher",
+            "source_agent": "Reacher3",
+            "target_agent": "Reacher4",
+            "robot_state_indices_source": [0, 1, 2],
+            "robot_state_indices_target": [0, 2, 4, 6],
+        },
     )
 
 

@@ -35,47 +35,88 @@ def _cmd_list(args: argparse.Namespace) -> None:
 def _cmd_train_policy(args: argparse.Namespace) -> None:
     from pved.experiments.stages import train_policy
 
-    path = train_policy(args.agent, args.task, seed=args.seed, steps=args.steps,
-                        reward=args.reward, runs_root=args.runs)
+    path = train_policy(
+        args.agent,
+        args.task,
+        seed=args.seed,
+        steps=args.steps,
+        reward=args.reward,
+        runs_root=args.runs,
+    )
     print(path)
 
 
 def _cmd_collect_pairs(args: argparse.Namespace) -> None:
     from pved.experiments.stages import collect_pairs
 
-    print(collect_pairs(args.pair, source_policy=args.source_policy,
-                        target_policy=args.target_policy, episodes=args.episodes,
-                        seed=args.seed, align=args.align, runs_root=args.runs))
+    print(
+        collect_pairs(
+            args.pair,
+            source_policy=args.source_policy,
+            target_policy=args.target_policy,
+            episodes=args.episodes,
+            seed=args.seed,
+            align=args.align,
+            runs_root=args.runs,
+        )
+    )
 
 
 def _cmd_train_model(args: argparse.Namespace) -> None:
     from pved.experiments.stages import train_model
 
-    print(train_model(args.pair, args.model, dataset=args.dataset, seed=args.seed,
-                      epochs=args.epochs, runs_root=args.runs))
+    print(
+        train_model(
+            args.pair,
+            args.model,
+            dataset=args.dataset,
+            seed=args.seed,
+            epochs=args.epochs,
+            runs_root=args.runs,
+        )
+    )
 
 
 def _cmd_build_bank(args: argparse.Namespace) -> None:
     from pved.experiments.stages import build_bank
 
-    print(build_bank(args.pair, source_policy=args.source_policy, episodes=args.episodes,
-                     seed=args.seed, runs_root=args.runs))
+    print(
+        build_bank(
+            args.pair,
+            source_policy=args.source_policy,
+            episodes=args.episodes,
+            seed=args.seed,
+            runs_root=args.runs,
+        )
+    )
 
 
 def _cmd_transfer(args: argparse.Namespace) -> None:
     from pved.experiments.stages import transfer
 
-    _print_json(transfer(args.pair, args.model, seed=args.seed, model_path=args.model_path,
-                         bank_path=args.bank, steps=args.steps, beta=args.beta,
-                         eval_every=args.eval_every, eval_episodes=args.eval_episodes,
-                         final_eval_episodes=args.final_eval_episodes, runs_root=args.runs))
+    _print_json(
+        transfer(
+            args.pair,
+            args.model,
+            seed=args.seed,
+            model_path=args.model_path,
+            bank_path=args.bank,
+            steps=args.steps,
+            beta=args.beta,
+            eval_every=args.eval_every,
+            eval_episodes=args.eval_episodes,
+            final_eval_episodes=args.final_eval_episodes,
+            runs_root=args.runs,
+        )
+    )
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> None:
     from pved.experiments.stages import evaluate
 
-    _print_json(evaluate(args.policy, args.env, episodes=args.episodes, seed=args.seed,
-                         reward=args.reward))
+    _print_json(
+        evaluate(args.policy, args.env, episodes=args.episodes, seed=args.seed, reward=args.reward)
+    )
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
@@ -108,8 +149,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add(name: str, help_text: str, runs_default: str = "runs") -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
-        p.add_argument("--runs", type=Path, default=Path(runs_default),
-                       help="root of the run directories (default: %(default)s)")
+        p.add_argument(
+            "--runs",
+            type=Path,
+            default=Path(runs_default),
+            help="root of the run directories (default: %(default)s)",
+        )
         return p
 
     p = sub.add_parser("list", help="list the pairs, models and environments")

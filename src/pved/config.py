@@ -104,4 +104,6 @@ def get_preset(pair: str) -> PairPreset:
     try:
         return PRESETS[pair]
     except KeyError:
-        raise PvedError(f"unknown pair {pair!r}; known pairs: {', '.join(sorted(PRESETS))}") from None
+        raise PvedError(
+            f"unknown pair {pair!r}; known pairs: {', '.join(sorted(PRESETS))}"
+        ) from None

@@ -192,7 +192,10 @@ class Run:
     def log(self, step: int, **scalars: float) -> None:
         """Append one ``metrics.jsonl`` line and the same scalars to TensorBoard."""
         clean = {k: float(v) for k, v in scalars.items()}
-        record = {"step": int(step), **{k: (v if math.isfinite(v) else None) for k, v in clean.items()}}
+        record = {
+            "step": int(step),
+            **{k: (v if math.isfinite(v) else None) for k, v in clean.items()},
+        }
         with open(self.path / "metrics.jsonl", "a") as handle:
             handle.write(json.dumps(record) + "\n")
         if self._use_tensorboard:

@@ -47,14 +47,32 @@ def transfer_report(
         m, ci = mean_ci(final)
         a, aci = mean_ci(auc)
         r, rci = mean_ci(final_ret)
-        rows.append({"method": method, "seeds": seeds, f"final_{metric}": final.tolist(),
-                     "final_mean": m, "final_ci95": ci, "curve_mean": a, "curve_ci95": aci,
-                     "final_return_mean": r, "final_return_ci95": rci,
-                     "steps": int(results[0]["steps"])})
-    plot_curves(curves[metric], out / f"curves_{metric}.png", metric.replace("_", " "),
-                title or f"{pair}: target agent on the target task")
-    plot_curves(curves["return_mean"], out / "curves_return.png", "return (env reward)",
-                title or f"{pair}: target agent on the target task")
+        rows.append(
+            {
+                "method": method,
+                "seeds": seeds,
+                f"final_{metric}": final.tolist(),
+                "final_mean": m,
+                "final_ci95": ci,
+                "curve_mean": a,
+                "curve_ci95": aci,
+                "final_return_mean": r,
+                "final_return_ci95": rci,
+                "steps": int(results[0]["steps"]),
+            }
+        )
+    plot_curves(
+        curves[metric],
+        out / f"curves_{metric}.png",
+        metric.replace("_", " "),
+        title or f"{pair}: target agent on the target task",
+    )
+    plot_curves(
+        curves["return_mean"],
+        out / "curves_return.png",
+        "return (env reward)",
+        title or f"{pair}: target agent on the target task",
+    )
     lines = [
         f"# {title or pair}",
         "",
@@ -73,6 +91,7 @@ def transfer_report(
             f"{row['final_return_mean']:.2f} ± {row['final_return_ci95']:.2f} |"
         )
     atomic_write_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
-    atomic_write_json(out / "results.json", {"pair": pair, "metric": metric, "rows": rows,
-                                             **(extra or {})})
+    atomic_write_json(
+        out / "results.json", {"pair": pair, "metric": metric, "rows": rows, **(extra or {})}
+    )
     return out

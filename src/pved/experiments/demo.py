@@ -40,14 +40,30 @@ class DemoConfig:
     jobs: int = 2
 
 
-def _transfer_job(pair: str, method: str, seed: int, steps: int, eval_every: int,
-                  eval_episodes: int, final_eval_episodes: int, runs_root: str) -> dict:
+def _transfer_job(
+    pair: str,
+    method: str,
+    seed: int,
+    steps: int,
+    eval_every: int,
+    eval_episodes: int,
+    final_eval_episodes: int,
+    runs_root: str,
+) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    return transfer(pair, method, seed=seed, steps=steps, eval_every=eval_every,
-                    eval_episodes=eval_episodes, final_eval_episodes=final_eval_episodes,
-                    runs_root=Path(runs_root), progress=False)
+    return transfer(
+        pair,
+        method,
+        seed=seed,
+        steps=steps,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        final_eval_episodes=final_eval_episodes,
+        runs_root=Path(runs_root),
+        progress=False,
+    )
 
 
 def _last_step(metrics: Path) -> int:
@@ -69,12 +85,25 @@ def run_transfers(cfg: DemoConfig, runs_root: Path) -> None:
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(max_workers=cfg.jobs, mp_context=ctx) as pool:
         futures: list[Future[dict]] = [
-            pool.submit(_transfer_job, cfg.pair, m, s, cfg.transfer_steps, cfg.eval_every,
-                        cfg.eval_episodes, cfg.final_eval_episodes, str(runs_root))
+            pool.submit(
+                _transfer_job,
+                cfg.pair,
+                m,
+                s,
+                cfg.transfer_steps,
+                cfg.eval_every,
+                cfg.eval_episodes,
+                cfg.final_eval_episodes,
+                str(runs_root),
+            )
             for m, s in jobs
         ]
-        metrics = [run_path(runs_root, cfg.pair, "transfer", m, s) / "metrics.jsonl" for m, s in jobs]
-        with tqdm(total=total, desc=f"transfer {len(jobs)} runs", unit="step", unit_scale=True) as bar:
+        metrics = [
+            run_path(runs_root, cfg.pair, "transfer", m, s) / "metrics.jsonl" for m, s in jobs
+        ]
+        with tqdm(
+            total=total, desc=f"transfer {len(jobs)} runs", unit="step", unit_scale=True
+        ) as bar:
             while not all(f.done() for f in futures):
                 done_steps = sum(
                     cfg.transfer_steps if f.done() else _last_step(p)
@@ -101,9 +130,13 @@ def run_demo(
     build_bank(cfg.pair, episodes=cfg.bank_episodes, runs_root=runs_root)
     run_transfers(cfg, runs_root)
     out = transfer_report(
-        cfg.pair, list(cfg.methods), list(cfg.seeds), runs_root, report_dir,
+        cfg.pair,
+        list(cfg.methods),
+        list(cfg.seeds),
+        runs_root,
+        report_dir,
         metric=preset.metric,
-        title=f"{preset.source_agent} -> {preset.target_agent} on {preset.target_task} (demo budget)",
+        title=f"{preset.source_agent} -> {preset.target_agent} on {preset.target_task} (demo)",
         extra={"demo_config": cfg, "wall_seconds": round(time.time() - start, 1)},
     )
     atomic_write_json(out / "demo_config.json", cfg)

@@ -28,7 +28,8 @@ from pved.envs import make_batched
 from pved.envs.registry import env_id
 from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
-from pved.models.train import load_model, save_model, train_model as fit_model
+from pved.models.train import load_model, save_model
+from pved.models.train import train_model as fit_model
 from pved.pairing.collect import collect_pairs as collect_paired_episodes
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
@@ -103,8 +104,16 @@ def train_policy(
     eval_fn = _eval_fn(name, eval_episodes, seed + 10**6, env_kwargs)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
     final = eval_fn(policy, ppo.total_steps)
-    policy.save(policy_file, {"env_id": name, "env_kwargs": env_kwargs, "seed": seed,
-                              "steps": ppo.total_steps, "pved_version": __version__})
+    policy.save(
+        policy_file,
+        {
+            "env_id": name,
+            "env_kwargs": env_kwargs,
+            "seed": seed,
+            "steps": ppo.total_steps,
+            "pved_version": __version__,
+        },
+    )
     run.finish({"policy": str(policy_file), "env_id": name, "steps": ppo.total_steps, **final})
     return policy_file
 
@@ -130,8 +139,14 @@ def collect_pairs(
     src_id = env_id(preset.source_agent, preset.training_task)
     tgt_id = env_id(preset.target_agent, preset.training_task)
     config = {
-        "stage": "pairs", "pair": pair, "episodes": episodes, "seed": seed, "align": align,
-        "pairing": cfg, "source_policy": file_digest(src_path), "target_policy": file_digest(tgt_path),
+        "stage": "pairs",
+        "pair": pair,
+        "episodes": episodes,
+        "seed": seed,
+        "align": align,
+        "pairing": cfg,
+        "source_policy": file_digest(src_path),
+        "target_policy": file_digest(tgt_path),
     }
     run = Run(run_path(runs_root, pair, "pairs", align, seed), config, tensorboard=False)
     out = run.path / "pairs.npz"
@@ -142,19 +157,42 @@ def collect_pairs(
     tgt_env = make_batched(tgt_id, cfg.num_envs)
     src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
     dataset = collect_paired_episodes(
-        src_env, tgt_env, src_pol, tgt_pol, episodes,
-        shared_task_keys=preset.shared_task_keys, align_method=align,
-        deterministic=cfg.deterministic, seed=seed, progress=progress,
+        src_env,
+        tgt_env,
+        src_pol,
+        tgt_pol,
+        episodes,
+        shared_task_keys=preset.shared_task_keys,
+        align_method=align,
+        deterministic=cfg.deterministic,
+        seed=seed,
+        progress=progress,
         header={
-            "pair": pair, "source_agent": preset.source_agent, "target_agent": preset.target_agent,
-            "source_env_id": src_id, "target_env_id": tgt_id,
-            "source_policy": str(src_path), "target_policy": str(tgt_path),
+            "pair": pair,
+            "source_agent": preset.source_agent,
+            "target_agent": preset.target_agent,
+            "source_env_id": src_id,
+            "target_env_id": tgt_id,
+            "source_policy": str(src_path),
+            "target_policy": str(tgt_path),
         },
     )
     save_dataset(out, dataset)
-    run.finish({"dataset": str(out), "rows": len(dataset),
-                **{k: dataset.header[k] for k in ("success_rate_source", "success_rate_target",
-                                                   "mean_length_source", "mean_length_target")}})
+    run.finish(
+        {
+            "dataset": str(out),
+            "rows": len(dataset),
+            **{
+                k: dataset.header[k]
+                for k in (
+                    "success_rate_source",
+                    "success_rate_target",
+                    "mean_length_source",
+                    "mean_length_target",
+                )
+            },
+        }
+    )
     return out
 
 
@@ -162,7 +200,9 @@ def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 
     return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
 
 
-def default_model_path(pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
+def default_model_path(
+    pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0
+) -> Path:
     return run_path(runs_root, pair, "model", model, seed) / "model.pt"
 
 
@@ -184,27 +224,44 @@ def train_model(
     src_env = make_batched(env_id(preset.source_agent, preset.training_task), 1)
     tgt_env = make_batched(env_id(preset.target_agent, preset.training_task), 1)
     data.check_dims(
-        src_env.single_observation_space.shape[0], src_env.single_action_space.shape[0],
-        tgt_env.single_observation_space.shape[0], tgt_env.single_action_space.shape[0],
+        src_env.single_observation_space.shape[0],
+        src_env.single_action_space.shape[0],
+        tgt_env.single_observation_space.shape[0],
+        tgt_env.single_action_space.shape[0],
     )
     model_cfg = dataclasses.replace(preset.model, seed=seed)
     if epochs is not None:
         model_cfg = dataclasses.replace(model_cfg, epochs=epochs)
-    config = {"stage": "model", "pair": pair, "model": model, "dataset": file_digest(data_path),
-              "model_config": model_cfg}
+    config = {
+        "stage": "model",
+        "pair": pair,
+        "model": model,
+        "dataset": file_digest(data_path),
+        "model_config": model_cfg,
+    }
     run = Run(run_path(runs_root, pair, "model", model, seed), config)
     out = run.path / "model.pt"
     if run.is_done() and out.exists():
         return out
     run.start()
     x_s, x_t = data.model_inputs()
-    fitted = fit_model(model, x_s, x_t, model_cfg, run, state_dims=data.state_dims,
-                       progress=progress)
-    save_model(fitted, out, {"pair": pair, "model": model, "dataset": str(data_path),
-                             "source_agent": preset.source_agent,
-                             "target_agent": preset.target_agent, "seed": seed,
-                             "robot_state_indices_source": data.header["robot_state_indices_source"],
-                             "robot_state_indices_target": data.header["robot_state_indices_target"]})
+    fitted = fit_model(
+        model, x_s, x_t, model_cfg, run, state_dims=data.state_dims, progress=progress
+    )
+    save_model(
+        fitted,
+        out,
+        {
+            "pair": pair,
+            "model": model,
+            "dataset": str(data_path),
+            "source_agent": preset.source_agent,
+            "target_agent": preset.target_agent,
+            "seed": seed,
+            "robot_state_indices_source": data.header["robot_state_indices_source"],
+            "robot_state_indices_target": data.header["robot_state_indices_target"],
+        },
+    )
     last = run.read_metrics()[-1] if run.read_metrics() else {}
     run.finish({"model": str(out), **{k: v for k, v in last.items() if k != "step"}})
     return out
@@ -223,20 +280,36 @@ def build_bank(
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
     path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
     name = env_id(preset.source_agent, preset.target_task)
-    config = {"stage": "bank", "env_id": name, "episodes": episodes, "seed": seed,
-              "match_keys": preset.bank_match_keys, "source_policy": file_digest(path)}
-    run = Run(run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
-              config, tensorboard=False)
+    config = {
+        "stage": "bank",
+        "env_id": name,
+        "episodes": episodes,
+        "seed": seed,
+        "match_keys": preset.bank_match_keys,
+        "source_policy": file_digest(path),
+    }
+    run = Run(
+        run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
+        config,
+        tensorboard=False,
+    )
     out = run.path / "bank.npz"
     if run.is_done() and out.exists():
         return out
     run.start()
     env = make_batched(name, EVAL_NUM_ENVS)
-    bank = build_source_bank(env, load_policy(path), episodes, preset.bank_match_keys, seed=seed,
-                             header={"env_id": name, "source_policy": str(path)})
+    bank = build_source_bank(
+        env,
+        load_policy(path),
+        episodes,
+        preset.bank_match_keys,
+        seed=seed,
+        header={"env_id": name, "source_policy": str(path)},
+    )
     save_bank(out, bank)
-    run.finish({"bank": str(out), "episodes": episodes,
-                "success_rate": bank.header["success_rate"]})
+    run.finish(
+        {"bank": str(out), "episodes": episodes, "success_rate": bank.header["success_rate"]}
+    )
     return out
 
 
@@ -267,17 +340,30 @@ def transfer(
     if eval_every is not None:
         ppo = dataclasses.replace(ppo, eval_every=eval_every)
     eval_episodes = tcfg.eval_episodes if eval_episodes is None else eval_episodes
-    final_episodes = tcfg.final_eval_episodes if final_eval_episodes is None else final_eval_episodes
+    final_episodes = (
+        tcfg.final_eval_episodes if final_eval_episodes is None else final_eval_episodes
+    )
     name = env_id(preset.target_agent, preset.target_task)
-    config: dict[str, Any] = {"stage": "transfer", "pair": pair, "method": method, "env_id": name,
-                              "ppo": ppo, "eval_episodes": eval_episodes,
-                              "final_eval_episodes": final_episodes}
+    config: dict[str, Any] = {
+        "stage": "transfer",
+        "pair": pair,
+        "method": method,
+        "env_id": name,
+        "ppo": ppo,
+        "eval_episodes": eval_episodes,
+        "final_eval_episodes": final_episodes,
+    }
     shaping_inputs: tuple[Path, Path] | None = None
     if method != NO_TRANSFER:
         m_path = Path(model_path) if model_path else default_model_path(pair, method, runs_root)
-        b_path = Path(bank_path) if bank_path else (
-            run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
-            / "bank.npz")
+        b_path = (
+            Path(bank_path)
+            if bank_path
+            else (
+                run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
+                / "bank.npz"
+            )
+        )
         for what, p in (("model", m_path), ("source bank", b_path)):
             if not p.exists():
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
@@ -298,34 +384,66 @@ def transfer(
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
     policy_file = run.path / "policy.pt"
-    policy.save(policy_file, {"env_id": name, "seed": seed, "method": method,
-                              "steps": ppo.total_steps, "pved_version": __version__})
-    final = evaluate_policy(policy, make_batched(name, EVAL_NUM_ENVS), episodes=final_episodes,
-                            seed=2 * 10**6 + seed)
-    return run.finish({"method": method, "seed": seed, "steps": ppo.total_steps,
-                       "policy": str(policy_file), **{f"final/{k}": v for k, v in final.items()}})
+    policy.save(
+        policy_file,
+        {
+            "env_id": name,
+            "seed": seed,
+            "method": method,
+            "steps": ppo.total_steps,
+            "pved_version": __version__,
+        },
+    )
+    final = evaluate_policy(
+        policy, make_batched(name, EVAL_NUM_ENVS), episodes=final_episodes, seed=2 * 10**6 + seed
+    )
+    return run.finish(
+        {
+            "method": method,
+            "seed": seed,
+            "steps": ppo.total_steps,
+            "policy": str(policy_file),
+            **{f"final/{k}": v for k, v in final.items()},
+        }
+    )
 
 
 def evaluate(
-    policy_path: Path | str, env_name: str, *, episodes: int = 500, seed: int = 0,
+    policy_path: Path | str,
+    env_name: str,
+    *,
+    episodes: int = 500,
+    seed: int = 0,
     reward: str | None = None,
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length."""
     policy = load_policy(Path(policy_path))
     env = make_batched(env_name, EVAL_NUM_ENVS, **({"reward": reward} if reward else {}))
-    _check_policy(policy, env_name, env.single_observation_space.shape[0],
-                  env.single_action_space.shape[0])
+    _check_policy(
+        policy, env_name, env.single_observation_space.shape[0], env.single_action_space.shape[0]
+    )
     return evaluate_policy(policy, env, episodes=episodes, seed=seed)
 
 
 def preset_summary(preset: PairPreset) -> dict[str, Any]:
     """A small JSON-able description of a preset (for reports)."""
-    return {"pair": preset.name, "source": preset.source_agent, "target": preset.target_agent,
-            "training_task": preset.training_task, "target_task": preset.target_task,
-            "alpha": [preset.model.alpha1, preset.model.alpha2, preset.model.alpha3],
-            "beta": preset.transfer.beta}
+    return {
+        "pair": preset.name,
+        "source": preset.source_agent,
+        "target": preset.target_agent,
+        "training_task": preset.training_task,
+        "target_task": preset.target_task,
+        "alpha": [preset.model.alpha1, preset.model.alpha2, preset.model.alpha3],
+        "beta": preset.transfer.beta,
+    }
 
 
 __all__ = [
-    "build_bank", "collect_pairs", "evaluate", "np", "train_model", "train_policy", "transfer",
+    "build_bank",
+    "collect_pairs",
+    "evaluate",
+    "np",
+    "train_model",
+    "train_policy",
+    "transfer",
 ]

@@ -97,11 +97,18 @@ def collect_pairs(
     """
     if source_env.num_envs != target_env.num_envs:
         raise PvedError("source and target envs must have the same number of copies")
-    for name, env, pol in (("source", source_env, source_policy), ("target", target_env, target_policy)):
-        if pol.obs_dim != env.single_observation_space.shape[0] or pol.act_dim != env.single_action_space.shape[0]:
+    for name, env, pol in (
+        ("source", source_env, source_policy),
+        ("target", target_env, target_policy),
+    ):
+        if (
+            pol.obs_dim != env.single_observation_space.shape[0]
+            or pol.act_dim != env.single_action_space.shape[0]
+        ):
             raise PvedError(
                 f"{name} policy dims (obs {pol.obs_dim}, act {pol.act_dim}) do not match its env "
-                f"(obs {env.single_observation_space.shape[0]}, act {env.single_action_space.shape[0]})"
+                f"(obs {env.single_observation_space.shape[0]}, "
+                f"act {env.single_action_space.shape[0]})"
             )
     n = source_env.num_envs
     batches = -(-episodes // n)

@@ -30,7 +30,15 @@ from pved.errors import PvedError
 from pved.runs import atomic_write_bytes
 
 FORMAT = "pved-paired-dataset/1"
-_ARRAYS = ("obs_source", "act_source", "obs_target", "act_target", "episode", "t_source", "t_target")
+_ARRAYS = (
+    "obs_source",
+    "act_source",
+    "obs_target",
+    "act_target",
+    "episode",
+    "t_source",
+    "t_target",
+)
 
 
 @dataclass
@@ -121,7 +129,9 @@ def load_dataset(path: Path | str) -> PairedDataset:
     except PvedError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as exc:
-        raise PvedError(f"cannot read dataset {path}: corrupt file ({type(exc).__name__})") from None
+        raise PvedError(
+            f"cannot read dataset {path}: corrupt file ({type(exc).__name__})"
+        ) from None
     if header.get("format") != FORMAT:
         raise PvedError(f"{path} is not a pved paired dataset (format {header.get('format')!r})")
     missing = [name for name in _ARRAYS if name not in arrays]

@@ -62,7 +62,8 @@ class LatentShaping:
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
         if bank.dim != model.source_dim:
             raise PvedError(
-                f"source bank rows have dim {bank.dim}, the model's source input is {model.source_dim}"
+                f"source bank rows have dim {bank.dim}, "
+                f"the model's source input is {model.source_dim}"
             )
 
     def reward(
@@ -134,8 +135,12 @@ class ShapedBatchedEnv(BatchedEnv):
 class LatentShapingWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """The Eq. 10 shaping as a plain Gymnasium wrapper around one target-task env."""
 
-    def __init__(self, env: gym.Env[np.ndarray, np.ndarray], shaping: LatentShaping,
-                 match_keys: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        env: gym.Env[np.ndarray, np.ndarray],
+        shaping: LatentShaping,
+        match_keys: tuple[str, ...],
+    ) -> None:
         super().__init__(env)
         self.shaping = shaping
         self.match_keys = match_keys

@@ -55,7 +55,8 @@ class SourceBank:
         params = np.asarray(task_params, dtype=np.float64).reshape(len(task_params), -1)
         if params.shape[1] != self.keys.shape[1]:
             raise PvedError(
-                f"task parameters have {params.shape[1]} entries, the bank matches on {self.keys.shape[1]}"
+                f"task parameters have {params.shape[1]} entries, "
+                f"the bank matches on {self.keys.shape[1]}"
             )
         dist = ((params[:, None, :] - self.keys[None, :, :]) ** 2).sum(-1)
         return np.asarray(dist.argmin(1), dtype=np.int64)
@@ -80,7 +81,9 @@ def build_source_bank(
     idx = np.asarray(env.robot_state_indices)
     eps = []
     for b in range(-(-episodes // env.num_envs)):
-        eps.extend(rollout_first_episodes(env, policy, seed + b * env.num_envs, None, deterministic))
+        eps.extend(
+            rollout_first_episodes(env, policy, seed + b * env.num_envs, None, deterministic)
+        )
     eps = eps[:episodes]
     t_max = max(len(e.obs) for e in eps)
     dim = len(idx) + eps[0].act.shape[1]
