@@ -54,8 +54,7 @@ def ship(agent: str, task: str, seed: int, steps: int, runs_root: Path) -> dict[
         "task": task,
         "seed": seed,
         "steps": steps,
-        "command": f"pved train-policy --agent {agent} --task {task} --seed {seed} "
-        f"--steps {steps}",
+        "command": f"pved train-policy --agent {agent} --task {task} --seed {seed} --steps {steps}",
         "evaluation": {"episodes": FINAL_EVAL_EPISODES, "seed": FINAL_EVAL_SEED, **stats},
         "sha256_16": file_digest(policy_file),
         "pved_version": __version__,

@@ -249,8 +249,14 @@ def test_each_part_and_the_wiring_of_every_decoder() -> None:
 
         return hook
 
-    for name in ("encoder_S", "encoder_T", "decoder_T", "decoder_S",
-                 "decoder_T_prime", "decoder_S_prime"):
+    for name in (
+        "encoder_S",
+        "encoder_T",
+        "decoder_T",
+        "decoder_S",
+        "decoder_T_prime",
+        "decoder_S_prime",
+    ):
         getattr(model, name).register_forward_hook(record(name))
     parts = model.loss(x_s, x_t)
 
@@ -265,8 +271,10 @@ def test_each_part_and_the_wiring_of_every_decoder() -> None:
 
     def is_sample_of(z: torch.Tensor, mean: torch.Tensor, logvar: torch.Tensor) -> bool:
         eps = (z - mean) / (0.5 * logvar).exp()
-        return bool(eps.abs().max() < 6) and abs(float(eps.mean())) < 0.1 and (
-            abs(float(eps.std()) - 1) < 0.1
+        return (
+            bool(eps.abs().max() < 6)
+            and abs(float(eps.mean())) < 0.1
+            and (abs(float(eps.std()) - 1) < 0.1)
         )
 
     # Eq. 2: p_θT is fed a sample of the SOURCE encoder's (c_T, y_T) ...
@@ -310,21 +318,31 @@ def test_each_part_and_the_wiring_of_every_decoder() -> None:
         torch.testing.assert_close(parts[f"kl_{term}"].detach(), kl[term])
         # The swapped target gives a clearly different number: the check has teeth.
         swapped = xs_std if term in ("ST", "TT") else xt_std
-        decoder = {"ST": model.decoder_T, "TS": model.decoder_S,
-                   "SS": model.decoder_T_prime, "TT": model.decoder_S_prime}[term]
+        decoder = {
+            "ST": model.decoder_T,
+            "TS": model.decoder_S,
+            "SS": model.decoder_T_prime,
+            "TT": model.decoder_S_prime,
+        }[term]
         wrong = loglik(decoder, seen[decoder_name(term)], swapped)
         assert abs(float(wrong - ll[term])) > 10
     # Eq. 7: L_C = −KL(q_φS(c_T|x_S) ‖ q_φT(c_S|x_T)).
-    l_c = -kl_divergence(
-        Normal(q_cT.mean, (0.5 * q_cT.logvar).exp()), Normal(q_cS.mean, (0.5 * q_cS.logvar).exp())
-    ).sum(-1).mean()
+    l_c = (
+        -kl_divergence(
+            Normal(q_cT.mean, (0.5 * q_cT.logvar).exp()),
+            Normal(q_cS.mean, (0.5 * q_cS.logvar).exp()),
+        )
+        .sum(-1)
+        .mean()
+    )
     torch.testing.assert_close(parts["L_C"].detach(), l_c)
     assert float(parts["L_C"].detach()) < -100  # c≈+3 vs c≈−3 with std 0.05: far apart
 
 
 def decoder_name(term: str) -> str:
-    return {"ST": "decoder_T", "TS": "decoder_S", "SS": "decoder_T_prime",
-            "TT": "decoder_S_prime"}[term]
+    return {"ST": "decoder_T", "TS": "decoder_S", "SS": "decoder_T_prime", "TT": "decoder_S_prime"}[
+        term
+    ]
 
 
 def test_gradients_reach_every_parameter() -> None:
@@ -358,7 +376,11 @@ def test_standardisation_is_inside_the_model(trained: PVED) -> None:
     # (Offsets that float32, the training dtype, still resolves at the data's scale.)
     scale_s, off_s, scale_t, off_t = 1000.0, 1e5, 1e-2, -50.0
     model = train_model(
-        "pved", x_s * scale_s + off_s, x_t * scale_t + off_t, QUICK, state_dims=(4, 3),
+        "pved",
+        x_s * scale_s + off_s,
+        x_t * scale_t + off_t,
+        QUICK,
+        state_dims=(4, 3),
         progress=False,
     )
     assert abs(float(model.source_norm.mean.mean()) - off_s) < 0.01 * off_s
@@ -413,12 +435,20 @@ def test_run_logging_checkpoints_and_exact_resume(tmp_path: Path) -> None:
 
     # Stop after 2 epochs, then continue to 4 in the same run directory.
     resumed = Run(tmp_path / "resumed", {"exp": 1}, tensorboard=False)
-    train_model("pved", x_s, x_t, dataclasses.replace(cfg, epochs=2), resumed,
-                state_dims=(4, 3), progress=False)
+    train_model(
+        "pved",
+        x_s,
+        x_t,
+        dataclasses.replace(cfg, epochs=2),
+        resumed,
+        state_dims=(4, 3),
+        progress=False,
+    )
     model_b = train_model("pved", x_s, x_t, cfg, resumed, state_dims=(4, 3), progress=False)
     assert [r["epoch"] for r in resumed.read_metrics()] == [1, 2, 3, 4]
-    for (name, a), b in zip(model_a.state_dict().items(), model_b.state_dict().values(),
-                            strict=True):
+    for (name, a), b in zip(
+        model_a.state_dict().items(), model_b.state_dict().values(), strict=True
+    ):
         assert torch.equal(a, b), name
     # A checkpoint is never resumed on other data.
     with pytest.raises(PvedError, match="other paired data"):

@@ -73,9 +73,7 @@ def config_from_dict(cls: type[ModelConfig], values: dict[str, Any]) -> ModelCon
     if unknown:
         raise PvedError(f"{cls.__name__} has no field(s) {', '.join(unknown)}")
     # JSON and torch round trips turn tuples into lists; frozen configs keep tuples.
-    clean: dict[str, Any] = {
-        k: tuple(v) if isinstance(v, list) else v for k, v in values.items()
-    }
+    clean: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     return cls(**clean)
 
 

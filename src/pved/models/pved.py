@@ -332,12 +332,8 @@ class PVED(SharedSpaceModel):
         # Eq. 6: the target's posterior over the SOURCE's factors reconstructs x_S.
         ll_TS = gaussian_log_likelihood(xs, self.decoder_S(c_S, y_S), self.decoder_S.logvar)
         # Eq. 8: each shared posterior alone reconstructs its OWN encoder's input.
-        ll_SS = gaussian_log_likelihood(
-            xs, self.decoder_T_prime(c_T), self.decoder_T_prime.logvar
-        )
-        ll_TT = gaussian_log_likelihood(
-            xt, self.decoder_S_prime(c_S), self.decoder_S_prime.logvar
-        )
+        ll_SS = gaussian_log_likelihood(xs, self.decoder_T_prime(c_T), self.decoder_T_prime.logvar)
+        ll_TT = gaussian_log_likelihood(xt, self.decoder_S_prime(c_S), self.decoder_S_prime.logvar)
         # Eq. 7: consistency of the two shared posteriors.
         kl_C = kl_diag_gaussians(q_cT.mean, q_cT.logvar, q_cS.mean, q_cS.logvar)
 

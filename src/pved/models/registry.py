@@ -40,9 +40,7 @@ def model_class(name: str) -> type[SharedSpaceModel]:
         ) from None
 
 
-def build_model(
-    name: str, dims: ModelDims, config: ModelConfig | None = None
-) -> SharedSpaceModel:
+def build_model(name: str, dims: ModelDims, config: ModelConfig | None = None) -> SharedSpaceModel:
     """A fresh, untrained model ``name`` for inputs of layout ``dims``.
 
     ``config`` defaults to the model's own config class with its defaults; a config of

@@ -82,8 +82,7 @@ def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, n
         n_val = max(1, n_val)
     if n - n_val < 1:
         raise PvedError(
-            f"only {n} paired rows: too few for a training split with val_fraction "
-            f"{val_fraction}"
+            f"only {n} paired rows: too few for a training split with val_fraction {val_fraction}"
         )
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 

@@ -538,6 +538,7 @@ class _Trainer:
         self.elapsed = 0.0
         self.ep_ret = np.zeros(config.num_envs, dtype=np.float64)
         self.ep_len = np.zeros(config.num_envs, dtype=np.int64)
+        self.reward_terms: dict[str, float] = {}  # per-step means of the last rollout
         self.obs = np.zeros((config.num_envs, self.obs_dim), dtype=np.float64)
         self.next_checkpoint = config.checkpoint_every
         self.next_eval = 0
@@ -649,6 +650,9 @@ class _Trainer:
         episodes: dict[str, list[float]] = {"return": [], "length": [], "success": []}
         std = np.exp(self.log_std)
         self.buf_trunc[:] = False
+        # per-step sums of the env's named reward terms (and of the shaping wrapper's
+        # env_reward / reward_shaping), so a shaped run shows what each part contributed
+        term_sums: dict[str, float] = {}
         for t in range(cfg.steps_per_env):
             obs_n = self.obs_norm(self.obs)
             mean, value = self._forward(obs_n)
@@ -666,6 +670,9 @@ class _Trainer:
             terminated = np.asarray(terminated, dtype=bool)
             done = terminated | np.asarray(truncated, dtype=bool)
             self.obs = np.asarray(next_obs, dtype=np.float64)
+            for key, value in info.items():
+                if key.startswith("reward_") or key == "env_reward":
+                    term_sums[key] = term_sums.get(key, 0.0) + float(np.sum(value))
 
             # episode statistics on the raw env reward
             self.ep_ret += reward
@@ -703,6 +710,7 @@ class _Trainer:
                 self.buf_boot[t, idx] = self._value(self.obs_norm(final))
                 self.buf_trunc[t, idx] = True
         self.global_step += cfg.batch_size
+        self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
         return episodes
 
     def advantages(self) -> tuple[np.ndarray, np.ndarray]:
@@ -928,6 +936,7 @@ def train_ppo(
             scalars = {f"loss/{k}": v for k, v in stats.items()}
             scalars["time/steps_per_s"] = config.batch_size / dt
             scalars["time/steps_per_s_mean"] = trainer.global_step / max(trainer.elapsed, 1e-9)
+            scalars.update({f"rollout/{k}": v for k, v in trainer.reward_terms.items()})
             if episodes["return"]:
                 scalars["episode/return_mean"] = float(np.mean(episodes["return"]))
                 scalars["episode/length_mean"] = float(np.mean(episodes["length"]))

@@ -132,8 +132,14 @@ class ShapedBatchedEnv(BatchedEnv):
         self.env.close()
 
 
-class LatentShapingWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
-    """The Eq. 10 shaping as a plain Gymnasium wrapper around one target-task env."""
+class LatentShapingWrapper(
+    gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray], gym.utils.RecordConstructorArgs
+):
+    """The Eq. 10 shaping as a plain Gymnasium wrapper around one target-task env.
+
+    It records its constructor arguments (as Gymnasium's own wrappers do), so
+    ``env.spec`` can rebuild the wrapped env, which Gymnasium's env checker relies on.
+    """
 
     def __init__(
         self,
@@ -141,7 +147,8 @@ class LatentShapingWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.nd
         shaping: LatentShaping,
         match_keys: tuple[str, ...],
     ) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self, shaping=shaping, match_keys=match_keys)
+        gym.Wrapper.__init__(self, env)
         self.shaping = shaping
         self.match_keys = match_keys
         self._obs: np.ndarray = np.zeros(env.observation_space.shape or ())

@@ -1,0 +1,145 @@
+"""The whole Reacher pipeline through the ``pved`` CLI on a tiny budget, and its bad inputs.
+
+Each stage runs as a user would run it (``pved <verb> ...``) in a temporary runs root,
+from the shipped pretrained policies to a report folder.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pved.cli import main
+from pved.pairing.dataset import load_dataset, save_dataset
+from pved.pretrained import pretrained_policy_path
+
+TINY_TRANSFER = ["--steps", "4096", "--eval-every", "2048", "--eval-episodes", "16",
+                 "--final-eval-episodes", "16"]  # fmt: skip
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Runs every stage once (module scope: the tests below read what it wrote)."""
+    runs = tmp_path_factory.mktemp("runs")
+    assert main(["collect-pairs", "--runs", str(runs), "--episodes", "32"]) == 0
+    assert main(["train-model", "--runs", str(runs), "--epochs", "2"]) == 0
+    assert main(["build-bank", "--runs", str(runs), "--episodes", "16"]) == 0
+    for method in ("pved", "ppo"):
+        assert main(["transfer", "--runs", str(runs), "--model", method, *TINY_TRANSFER]) == 0
+    return runs
+
+
+def test_every_stage_writes_its_run_directory(pipeline: Path) -> None:
+    root = pipeline / "reacher"
+    for stage in (
+        "pairs/subsample/seed0",
+        "model/pved/seed0",
+        "bank/Reacher3-Push/seed0",
+        "transfer/pved/seed20000",
+        "transfer/ppo/seed20000",
+    ):
+        run = root / stage
+        assert (run / "config.json").exists(), stage
+        result = json.loads((run / "result.json").read_text())
+        assert "config_hash" in result
+    data = load_dataset(root / "pairs/subsample/seed0/pairs.npz")
+    assert len(np.unique(data.episode)) == 32
+    # both agents solved the same task instance in every paired episode
+    assert set(data.header["shared_task_keys"]) == {"target"}
+    # transfer runs log a learning curve with TensorBoard events beside it
+    for method in ("pved", "ppo"):
+        run = root / "transfer" / method / "seed20000"
+        rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+        assert [r["step"] for r in rows if "eval/success_rate" in r] == [0, 2048, 4096]
+        assert any(p.name.startswith("events.out.tfevents") for p in run.iterdir())
+        result = json.loads((run / "result.json").read_text())
+        assert result["final/episodes"] == 16
+    shaped = [
+        json.loads(line)
+        for line in (root / "transfer/pved/seed20000/metrics.jsonl").read_text().splitlines()
+    ]
+    assert any("rollout/reward_shaping" in r for r in shaped)
+
+
+def test_done_stage_is_skipped(pipeline: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    result = pipeline / "reacher/transfer/ppo/seed20000/result.json"
+    before = result.stat().st_mtime_ns
+    code, out, _ = run_cli(capsys, "transfer", "--runs", pipeline, "--model", "ppo",
+                           *TINY_TRANSFER)  # fmt: skip
+    assert code == 0 and json.loads(out)["method"] == "ppo"
+    assert result.stat().st_mtime_ns == before
+
+
+def test_report_and_evaluate(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out_dir = tmp_path / "report"
+    code, out, _ = run_cli(capsys, "report", "--runs", pipeline, "--seeds", "20000",
+                           "--out", out_dir)  # fmt: skip
+    assert code == 0
+    for name in ("curves_success_rate.png", "curves_return.png", "results.md", "results.json"):
+        assert (out_dir / name).stat().st_size > 0
+    policy = pipeline / "reacher/transfer/pved/seed20000/policy.pt"
+    code, out, _ = run_cli(capsys, "evaluate", "--policy", policy, "--env",
+                           "pved/Reacher4Push-v0", "--episodes", "16")  # fmt: skip
+    assert code == 0 and json.loads(out)["episodes"] == 16
+
+
+def one_line_error(capsys: pytest.CaptureFixture[str], *argv: object, match: str) -> None:
+    code, _, err = run_cli(capsys, *map(str, argv))
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pved: error:"), err
+    assert match in lines[0], lines[0]
+
+
+def test_bad_input_is_one_line_and_nonzero(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = tmp_path / "runs"
+    one_line_error(capsys, "collect-pairs", "--runs", runs, "--pair", "nope",
+                   match="unknown pair 'nope'")  # fmt: skip
+    one_line_error(capsys, "train-policy", "--runs", runs, "--agent", "Robot9", "--task",
+                   "Reach", match="unknown agent 'Robot9'")  # fmt: skip
+    one_line_error(capsys, "train-policy", "--runs", runs, "--agent", "Reacher3", "--task",
+                   "Fly", match="unknown task 'Fly'")  # fmt: skip
+    one_line_error(capsys, "train-model", "--runs", runs, "--model", "magic",
+                   "--dataset", pipeline / "reacher/pairs/subsample/seed0/pairs.npz",
+                   match="magic")  # fmt: skip
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(b"\x00garbage")
+    one_line_error(capsys, "train-model", "--runs", runs, "--dataset", corrupt,
+                   match=str(corrupt))  # fmt: skip
+    # a dataset whose dims do not match the pair's agents (source and target swapped)
+    data = load_dataset(pipeline / "reacher/pairs/subsample/seed0/pairs.npz")
+    swapped = type(data)(
+        obs_source=data.obs_target, act_source=data.act_target,
+        obs_target=data.obs_source, act_target=data.act_source,
+        episode=data.episode, t_source=data.t_target, t_target=data.t_source,
+        task=data.task,
+        header={**data.header,
+                **{f"{k}_source": data.header[f"{k}_target"] for k in ("obs_dim", "act_dim")},
+                **{f"{k}_target": data.header[f"{k}_source"] for k in ("obs_dim", "act_dim")},
+                "robot_state_indices_source": data.header["robot_state_indices_target"],
+                "robot_state_indices_target": data.header["robot_state_indices_source"]},
+    )  # fmt: skip
+    save_dataset(tmp_path / "swapped.npz", swapped)
+    one_line_error(capsys, "train-model", "--runs", runs, "--dataset", tmp_path / "swapped.npz",
+                   match="dataset obs_source has dim 18, but the agent's is 15")  # fmt: skip
+    one_line_error(capsys, "evaluate", "--policy", pretrained_policy_path("Reacher3", "Reach"),
+                   "--env", "pved/Reacher4Push-v0", match="do not match")  # fmt: skip
+    one_line_error(capsys, "evaluate", "--policy", corrupt, "--env", "pved/Reacher4Push-v0",
+                   match=str(corrupt))  # fmt: skip
+    one_line_error(capsys, "transfer", "--runs", runs, "--model", "pved",
+                   match="not found")  # fmt: skip
+    # nothing half-written: failed stages left no result.json behind
+    assert not list(runs.rglob("result.json")) if runs.exists() else True

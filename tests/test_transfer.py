@@ -1,0 +1,137 @@
+"""The Eq. 10 shaping: the source bank, the batched form, the Gymnasium wrapper."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+import pved  # noqa: F401  (registers the env ids)
+from pved.envs import make_batched
+from pved.errors import PvedError
+from pved.models import PVED, ModelDims, PVEDConfig
+from pved.pretrained import pretrained_policy_path
+from pved.rl.policy import load_policy
+from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
+from pved.transfer.source_bank import SourceBank, build_source_bank, load_bank, save_bank
+
+TARGET_PUSH = "pved/Reacher4Push-v0"
+SOURCE_PUSH = "pved/Reacher3Push-v0"
+MATCH_KEYS = ("button_start",)
+
+
+@pytest.fixture(scope="module")
+def bank() -> SourceBank:
+    env = make_batched(SOURCE_PUSH, 4)
+    policy = load_policy(pretrained_policy_path("Reacher3", "Push"))
+    return build_source_bank(env, policy, 8, MATCH_KEYS, seed=5)
+
+
+@pytest.fixture(scope="module")
+def shaping(bank: SourceBank) -> LatentShaping:
+    target = make_batched(TARGET_PUSH, 1)
+    n_tgt = len(target.robot_state_indices)
+    n_src = len(bank.header["robot_state_indices"])
+    dims = ModelDims(bank.dim, n_tgt + target.single_action_space.shape[0], n_src, n_tgt)
+    torch.manual_seed(0)
+    model = PVED(dims, PVEDConfig())
+    # standardisation from rough data so the untrained encoders see unit-scale inputs
+    model.fit_standardization(
+        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
+    )
+    return LatentShaping(model, bank, beta=0.1, robot_state_indices=target.robot_state_indices)
+
+
+def test_bank_holds_source_rollouts_and_matches_nearest(bank: SourceBank) -> None:
+    assert bank.x.shape[0] == 8 and bank.keys.shape == (8, 2)
+    assert bank.header["success_rate"] == 1.0  # the shipped Push policy solves the task
+    # each key is the button start the episode was reset with; the nearest is itself
+    assert np.array_equal(bank.match(bank.keys), np.arange(8))
+    shifted = bank.keys[3] + np.array([1e-4, 0.0])
+    assert bank.match(shifted[None])[0] == 3
+    # past the episode's end the lookup repeats its last row
+    last = bank.lengths[2] - 1
+    assert np.array_equal(bank.lookup(np.array([2]), np.array([last + 50]))[0], bank.x[2, last])
+    with pytest.raises(PvedError, match="task parameters have 3 entries"):
+        bank.match(np.zeros((1, 3)))
+
+
+def test_bank_file_round_trip_and_bad_files(tmp_path: Path, bank: SourceBank) -> None:
+    path = save_bank(tmp_path / "bank.npz", bank)
+    again = load_bank(path)
+    assert np.array_equal(again.x, bank.x) and again.header["match_keys"] == list(MATCH_KEYS)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(PvedError, match="corrupt or foreign"):
+        load_bank(tmp_path / "junk.npz")
+    np.savez(tmp_path / "foreign.npz", x=np.zeros(3))
+    with pytest.raises(PvedError, match=r"corrupt or foreign|not a pved source bank"):
+        load_bank(tmp_path / "foreign.npz")
+    with pytest.raises(PvedError, match="not found"):
+        load_bank(tmp_path / "missing.npz")
+
+
+def test_shaping_is_minus_beta_times_the_models_kl(shaping: LatentShaping) -> None:
+    env = make_batched(TARGET_PUSH, 3)
+    obs, info = env.reset(seed=1)
+    actions = np.random.default_rng(0).uniform(-1, 1, (3, env.single_action_space.shape[0]))
+    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    t = np.array([0, 7, 99])
+    got = shaping.reward(obs, actions, episode, t)
+    x_t = np.concatenate([obs[:, env.robot_state_indices], actions], 1)
+    x_s = shaping.bank.lookup(episode, t)
+    with torch.no_grad():
+        kl = shaping.model.shaping(torch.as_tensor(x_s).float(), torch.as_tensor(x_t).float())
+    np.testing.assert_allclose(got, -0.1 * kl.double().numpy(), rtol=1e-6)
+    assert np.all(got <= 0.0)
+
+
+def test_batched_and_gymnasium_forms_give_identical_shaped_transitions(
+    shaping: LatentShaping,
+) -> None:
+    n, steps = 2, 130  # crosses one episode boundary (Push episodes are 100 steps)
+    batched = ShapedBatchedEnv(make_batched(TARGET_PUSH, n), shaping, MATCH_KEYS)
+    singles = [
+        LatentShapingWrapper(gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS) for _ in range(n)
+    ]
+    obs_b, _ = batched.reset(seed=11)
+    obs_s = [env.reset(seed=11 + i)[0] for i, env in enumerate(singles)]
+    np.testing.assert_array_equal(obs_b, np.stack(obs_s))
+    rng = np.random.default_rng(3)
+    for _ in range(steps):
+        act = rng.uniform(-1, 1, (n, batched.single_action_space.shape[0]))
+        obs_b, rew_b, term_b, trunc_b, info_b = batched.step(act)
+        np.testing.assert_allclose(rew_b, info_b["env_reward"] + info_b["reward_shaping"])
+        for i, env in enumerate(singles):
+            o, r, term, trunc, info = env.step(act[i])
+            assert info["env_reward"] == info_b["env_reward"][i]
+            # the model runs in float32, whose matmuls may round differently per batch size
+            assert info["reward_shaping"] == pytest.approx(info_b["reward_shaping"][i], rel=1e-5)
+            assert r == pytest.approx(rew_b[i], rel=1e-5)
+            assert (term, trunc) == (bool(term_b[i]), bool(trunc_b[i]))
+            if term or trunc:  # the batched form autoresets; reset the single one alike
+                o, _ = env.reset()
+            np.testing.assert_array_equal(o, obs_b[i])
+
+
+def test_wrapper_passes_gymnasium_checker(shaping: LatentShaping) -> None:
+    env = LatentShapingWrapper(gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS)
+    check_env(env, skip_render_check=True)
+
+
+def test_stable_baselines3_trains_on_the_wrapper(shaping: LatentShaping) -> None:
+    sb3 = pytest.importorskip("stable_baselines3")
+    env = LatentShapingWrapper(gym.make(TARGET_PUSH), shaping, MATCH_KEYS)
+    model = sb3.PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=128)
+    assert model.num_timesteps == 128
+
+
+def test_mismatched_model_and_bank_are_rejected(bank: SourceBank) -> None:
+    target = make_batched(TARGET_PUSH, 1)
+    wrong = PVED(ModelDims(bank.dim + 1, 20, 10, 16), PVEDConfig())
+    with pytest.raises(PvedError, match="source bank rows have dim"):
+        LatentShaping(wrong, bank, 0.1, target.robot_state_indices)
