@@ -68,8 +68,16 @@ def load_curve(method: str, run_dirs: list[Path], seeds: list[int], key: str) ->
     return Curve(method, steps, values, list(seeds))
 
 
-def plot_curves(curves: list[Curve], path: Path, ylabel: str, title: str) -> Path:
-    """Mean ± 95% CI per method over env steps, saved as PNG."""
+def plot_curves(
+    curves: list[Curve],
+    path: Path,
+    ylabel: str,
+    title: str,
+    bounds: tuple[float, float] | None = None,
+) -> Path:
+    """Mean ± 95% CI per method over env steps, each seed's curve faintly behind it,
+    saved as PNG. ``bounds``: the metric's range (e.g. (0, 1) for a success rate); the
+    t-interval, which knows no bounds, is drawn clipped to it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -78,8 +86,16 @@ def plot_curves(curves: list[Curve], path: Path, ylabel: str, title: str) -> Pat
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     for curve in curves:
         mean, ci = curve.mean, curve.ci95
-        ax.plot(curve.steps, mean, label=f"{curve.method} (n={len(curve.seeds)})")
-        ax.fill_between(curve.steps, mean - ci, mean + ci, alpha=0.25)
+        low, high = mean - ci, mean + ci
+        if bounds is not None:
+            low, high = np.clip(low, *bounds), np.clip(high, *bounds)
+        (line,) = ax.plot(curve.steps, mean, label=f"{curve.method} (n={len(curve.seeds)})")
+        ax.fill_between(curve.steps, low, high, alpha=0.2, color=line.get_color())
+        for seed_values in curve.values:
+            ax.plot(curve.steps, seed_values, color=line.get_color(), alpha=0.25, lw=0.7)
+    if bounds is not None:
+        margin = 0.03 * (bounds[1] - bounds[0])
+        ax.set_ylim(bounds[0] - margin, bounds[1] + margin)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
     ax.set_title(title)

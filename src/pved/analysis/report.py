@@ -66,6 +66,7 @@ def transfer_report(
         out / f"curves_{metric}.png",
         metric.replace("_", " "),
         title or f"{pair}: target agent on the target task",
+        bounds=(0.0, 1.0) if metric == "success_rate" else None,
     )
     plot_curves(
         curves["return_mean"],
@@ -80,13 +81,14 @@ def transfer_report(
         "mean of the evaluation points along training (a sample-efficiency summary). "
         "± is the 95% t-interval over seeds.",
         "",
-        f"| method | seeds | env steps | final {metric} | curve mean | final return |",
-        "|---|---|---|---|---|---|",
+        f"| method | seeds | env steps | final {metric} | per seed | curve mean | final return |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
+        per_seed = " ".join(f"{v:.2f}" for v in row[f"final_{metric}"])
         lines.append(
             f"| {row['method']} | {len(row['seeds'])} | {row['steps']} | "
-            f"{row['final_mean']:.3f} ± {row['final_ci95']:.3f} | "
+            f"{row['final_mean']:.3f} ± {row['final_ci95']:.3f} | {per_seed} | "
             f"{row['curve_mean']:.3f} ± {row['curve_ci95']:.3f} | "
             f"{row['final_return_mean']:.2f} ± {row['final_return_ci95']:.2f} |"
         )

@@ -18,7 +18,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pved.analysis.report import transfer_report
-from pved.config import get_preset
+from pved.config import EVALUATION_SEEDS, get_preset
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
 from pved.runs import atomic_write_json, run_path
 
@@ -29,7 +29,7 @@ class DemoConfig:
 
     pair: str = "reacher"
     methods: tuple[str, ...] = ("pved", "ppo")
-    seeds: tuple[int, ...] = (20000, 40000, 60000)
+    seeds: tuple[int, ...] = EVALUATION_SEEDS  # the paper's five evaluation seeds (IV.A)
     pair_episodes: int = 400
     model_epochs: int = 40
     bank_episodes: int = 100
