@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pved.errors import PvedError
-from pved.pairing.align import align, subsample_indices
+from pved.pairing.align import align, dtw_indices, subsample_indices
 from pved.pairing.dataset import PairedDataset, load_dataset, save_dataset
 
 
@@ -20,8 +20,33 @@ def test_subsample_keeps_shorter_and_spreads_longer() -> None:
     assert i_s.tolist() == [0, 1, 2] and i_t.tolist() == [0, 3, 6]
     i_s, i_t = subsample_indices(5, 5)
     assert i_s.tolist() == i_t.tolist() == [0, 1, 2, 3, 4]
-    with pytest.raises(PvedError):
+    with pytest.raises(PvedError, match="unknown alignment 'warp'"):
         align("warp", 3, 3)
+    with pytest.raises(PvedError, match="needs a learned shared space"):
+        align("dtw", 3, 3)
+
+
+def test_dtw_pairs_a_stretched_episode_with_its_original() -> None:
+    phase = np.linspace(0.0, 1.0, 6)
+    source = np.stack([np.sin(3 * phase), phase], 1)  # (6, 2)
+    target = np.repeat(source, 2, axis=0)  # the same motion at half speed, (12, 2)
+    i_s, i_t = dtw_indices(source, target)
+    # every target step is paired with the source step it repeats, and nothing else
+    assert i_t.tolist() == list(range(12))
+    assert i_s.tolist() == [k // 2 for k in range(12)]
+    # identical episodes: the diagonal
+    i_s, i_t = dtw_indices(source, source)
+    assert i_s.tolist() == i_t.tolist() == list(range(6))
+    # a shifted episode: monotone path from (0, 0) to the two last steps
+    shifted = np.concatenate([source[:1].repeat(3, 0), source])
+    i_s, i_t = dtw_indices(source, shifted)
+    assert (i_s[0], i_t[0]) == (0, 0) and (i_s[-1], i_t[-1]) == (5, 8)
+    assert np.all(np.diff(i_s) >= 0) and np.all(np.diff(i_t) >= 0)
+    assert set(i_t.tolist()) == set(range(9))
+    with pytest.raises(PvedError, match="equal K"):
+        dtw_indices(source, np.zeros((4, 3)))
+    with pytest.raises(PvedError, match="NaN"):
+        dtw_indices(source, np.full((4, 2), np.nan))
 
 
 def _dataset(rows: int = 12) -> PairedDataset:

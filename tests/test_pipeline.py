@@ -33,7 +33,7 @@ def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["collect-pairs", "--runs", str(runs), "--episodes", "32"]) == 0
     assert main(["train-model", "--runs", str(runs), "--epochs", "2"]) == 0
     assert main(["build-bank", "--runs", str(runs), "--episodes", "16"]) == 0
-    for method in ("pved", "ppo"):
+    for method in ("pved", "ppo", "oracle"):
         assert main(["transfer", "--runs", str(runs), "--model", method, *TINY_TRANSFER]) == 0
     return runs
 
@@ -46,6 +46,7 @@ def test_every_stage_writes_its_run_directory(pipeline: Path) -> None:
         "bank/Reacher3-Push/seed0",
         "transfer/pved/seed20000",
         "transfer/ppo/seed20000",
+        "transfer/oracle/seed20000",
     ):
         run = root / stage
         assert (run / "config.json").exists(), stage
@@ -141,5 +142,38 @@ def test_bad_input_is_one_line_and_nonzero(
                    match=str(corrupt))  # fmt: skip
     one_line_error(capsys, "transfer", "--runs", runs, "--model", "pved",
                    match="not found")  # fmt: skip
+    one_line_error(capsys, "transfer", "--runs", runs, "--model", "magic",
+                   match="unknown model 'magic'")  # fmt: skip
+    one_line_error(capsys, "collect-pairs", "--runs", runs, "--align", "warp",
+                   match="unknown alignment 'warp'")  # fmt: skip
     # nothing half-written: failed stages left no result.json behind
     assert not list(runs.rglob("result.json")) if runs.exists() else True
+
+
+def test_oracle_trains_on_the_full_reward_and_is_evaluated_on_the_default(
+    pipeline: Path,
+) -> None:
+    run = pipeline / "reacher/transfer/oracle/seed20000"
+    config = json.loads((run / "config.json").read_text())["config"]
+    assert config["train_reward"] == "full" and "model" not in config
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    terms = [r for r in rows if "rollout/reward_ee_button" in r]
+    assert terms, "the oracle's training reward has the source's ee->button term"
+    ppo_rows = (pipeline / "reacher/transfer/ppo/seed20000/metrics.jsonl").read_text()
+    assert "rollout/reward_ee_button" not in ppo_rows
+
+
+def test_dtw_alignment_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_cli(capsys, "collect-pairs", "--runs", tmp_path, "--episodes", "16",
+                             "--align", "dtw")  # fmt: skip
+    assert code == 0, err
+    data = load_dataset(Path(out.strip()))
+    assert data.header["alignment"] == "dtw" and len(data.header["dtw"]) == 2
+    assert len(np.unique(data.episode)) == 16
+    for e in range(16):
+        rows = data.episode == e
+        t_s, t_t = data.t_source[rows], data.t_target[rows]
+        # a warping path: monotone, from both first steps to both last steps
+        assert (t_s[0], t_t[0]) == (0, 0) and (t_s[-1], t_t[-1]) == (49, 49)
+        assert np.all(np.diff(t_s) >= 0) and np.all(np.diff(t_t) >= 0)
+    assert 0.0 <= data.header["dtw"][-1]["moved_fraction"] <= 1.0

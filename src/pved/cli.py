@@ -28,7 +28,8 @@ def _cmd_list(args: argparse.Namespace) -> None:
     from pved.models import MODELS
 
     print("pairs:  " + ", ".join(sorted(PRESETS)))
-    print("models: " + ", ".join(sorted(MODELS)) + ", ppo (no transfer)")
+    print("models: " + ", ".join(sorted(MODELS)))
+    print("transfer methods: the models, ppo (no transfer), oracle (source's full reward)")
     print("envs:   " + ", ".join(registered_env_ids()))
 
 
@@ -174,7 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target-policy", type=Path, help="default: the shipped pretrained one")
     p.add_argument("--episodes", type=int)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--align", help="subsample (paper IV.A)")
+    p.add_argument(
+        "--align",
+        help="subsample (paper IV.A, the default) or dtw (rounds of DTW on the shared space)",
+    )
     p.set_defaults(func=_cmd_collect_pairs)
 
     p = add("train-model", "fit PVED (or a variant) on a paired dataset")
@@ -194,7 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("transfer", "PPO of the target agent with the Eq. 10 shaping (or --model ppo)")
     p.add_argument("--pair", default="reacher")
-    p.add_argument("--model", default="pved", help="a model name, or ppo for no transfer")
+    p.add_argument(
+        "--model",
+        default="pved",
+        help="a model name (shaping), ppo (no transfer) or oracle (the source's full reward)",
+    )
     p.add_argument("--seed", type=int, default=20000)
     p.add_argument("--model-path", type=Path)
     p.add_argument("--bank", type=Path)

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 from pved.errors import PvedError
+from pved.models.base import ModelConfig
 from pved.models.pved import PVEDConfig
+from pved.models.registry import model_class
 from pved.rl.ppo import PPOConfig
 
 # Seeds of the paper's protocol (IV.A): tuning and evaluation seeds of the DRL stage.
@@ -28,6 +31,12 @@ class PairingConfig:
     align: str = "subsample"
     deterministic: bool = True  # the policies' mean actions: the control they learned
     seed: int = 0
+    # ``align="dtw"`` (Gupta et al. 2017): rounds of (train ``dtw_model`` on the current
+    # alignment, re-align every episode pair by DTW on its shared means), starting from
+    # the subsampled alignment; ``dtw_epochs`` overrides the model's epochs per round.
+    dtw_rounds: int = 2
+    dtw_model: str = "pved"
+    dtw_epochs: int | None = None
 
 
 @dataclass(frozen=True)
@@ -63,6 +72,20 @@ class PairPreset:
     # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
     policy: PPOConfig = field(default_factory=PPOConfig)
     policy_overrides: tuple[tuple[str, str, PPOConfig], ...] = ()
+
+    def model_config(self, name: str, **overrides: Any) -> ModelConfig:
+        """The config of model ``name`` for this pair: every field it shares with the
+        pair's PVED config (Table 1's α weights, lr, batch size, epochs...) taken from
+        there, the rest its own defaults, then ``overrides`` (e.g. ``seed=1``)."""
+        cls = model_class(name).config_class
+        own = {f.name for f in dataclasses.fields(cls) if f.init}
+        values = {
+            f.name: getattr(self.model, f.name)
+            for f in dataclasses.fields(self.model)
+            if f.init and f.name in own
+        }
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**values)
 
     def policy_config(self, agent: str, task: str) -> PPOConfig:
         """The PPO config used to train ``agent`` on ``task`` for this pair."""

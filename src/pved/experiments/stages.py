@@ -28,9 +28,15 @@ from pved.envs import make_batched
 from pved.envs.registry import env_id
 from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
-from pved.models.train import load_model, save_model
+from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import train_model as fit_model
-from pved.pairing.collect import collect_pairs as collect_paired_episodes
+from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, align, dtw_indices
+from pved.pairing.collect import (
+    EpisodePair,
+    collect_episode_pairs,
+    env_header,
+    pairs_to_dataset,
+)
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
@@ -42,7 +48,9 @@ from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
 DEFAULT_RUNS = Path("runs")
 EVAL_NUM_ENVS = 16
-NO_TRANSFER = "ppo"
+NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
+ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
+REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
 
 
 def file_digest(path: Path) -> str:
@@ -134,6 +142,8 @@ def collect_pairs(
     cfg = preset.pairing
     episodes = cfg.episodes if episodes is None else episodes
     align = cfg.align if align is None else align
+    if align not in ALIGNMENTS:
+        raise PvedError(f"unknown alignment {align!r}; known: {', '.join(ALIGNMENTS)}")
     src_path = _policy_or_pretrained(source_policy, preset.source_agent, preset.training_task)
     tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, preset.training_task)
     src_id = env_id(preset.source_agent, preset.training_task)
@@ -156,26 +166,37 @@ def collect_pairs(
     src_env = make_batched(src_id, cfg.num_envs)
     tgt_env = make_batched(tgt_id, cfg.num_envs)
     src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
-    dataset = collect_paired_episodes(
+    pairs = collect_episode_pairs(
         src_env,
         tgt_env,
         src_pol,
         tgt_pol,
         episodes,
         shared_task_keys=preset.shared_task_keys,
-        align_method=align,
         deterministic=cfg.deterministic,
         seed=seed,
         progress=progress,
-        header={
-            "pair": pair,
-            "source_agent": preset.source_agent,
-            "target_agent": preset.target_agent,
-            "source_env_id": src_id,
-            "target_env_id": tgt_id,
-            "source_policy": str(src_path),
-            "target_policy": str(tgt_path),
-        },
+    )
+    header = {
+        "pair": pair,
+        "source_agent": preset.source_agent,
+        "target_agent": preset.target_agent,
+        "source_env_id": src_id,
+        "target_env_id": tgt_id,
+        "source_policy": str(src_path),
+        "target_policy": str(tgt_path),
+        **env_header(src_env, tgt_env),
+        "alignment": align,
+        "deterministic_actions": cfg.deterministic,
+        "seed": seed,
+    }
+    time_only = "subsample" if align in LEARNED_ALIGNMENTS else align
+    alignment = [_time_alignment(time_only, e_s, e_t) for e_s, e_t in pairs]
+    if align == "dtw":
+        alignment, rounds = _dtw_rounds(preset, pairs, alignment, header, seed, progress)
+        header["dtw"] = rounds
+    dataset = pairs_to_dataset(
+        pairs, alignment, shared_task_keys=preset.shared_task_keys, header=header
     )
     save_dataset(out, dataset)
     run.finish(
@@ -194,6 +215,71 @@ def collect_pairs(
         }
     )
     return out
+
+
+def _time_alignment(method: str, e_s: Any, e_t: Any) -> tuple[np.ndarray, np.ndarray]:
+    return align(method, len(e_s.obs), len(e_t.obs))
+
+
+def _model_rows(pairs: list[EpisodePair], header: dict[str, Any]) -> list[np.ndarray]:
+    """Per episode pair, the model inputs ``[robot state, action]`` of both agents."""
+    idx_s = np.asarray(header["robot_state_indices_source"])
+    idx_t = np.asarray(header["robot_state_indices_target"])
+    rows = []
+    for e_s, e_t in pairs:
+        rows.append(np.concatenate([e_s.obs[:, idx_s], e_s.act], 1).astype(np.float32))
+        rows.append(np.concatenate([e_t.obs[:, idx_t], e_t.act], 1).astype(np.float32))
+    return rows
+
+
+def _dtw_rounds(
+    preset: PairPreset,
+    pairs: list[EpisodePair],
+    alignment: list[tuple[np.ndarray, np.ndarray]],
+    header: dict[str, Any],
+    seed: int,
+    progress: bool,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[dict[str, float]]]:
+    """Gupta et al. (2017)'s alternation: train the pair's model on the current
+    alignment, re-align each episode pair by DTW on the two agents' shared means, repeat
+    ``dtw_rounds`` times. Returns the last alignment and per-round statistics (how many
+    rows changed partner, the model's validation loss)."""
+    cfg = preset.pairing
+    config = preset.model_config(cfg.dtw_model, seed=seed, epochs=cfg.dtw_epochs)
+    rows = _model_rows(pairs, header)
+    state_dims = (
+        len(header["robot_state_indices_source"]),
+        len(header["robot_state_indices_target"]),
+    )
+    stats: list[dict[str, float]] = []
+    for round_index in range(cfg.dtw_rounds):
+        data = pairs_to_dataset(pairs, alignment, shared_task_keys=(), header=header)
+        x_s, x_t = data.model_inputs()
+        model = fit_model(cfg.dtw_model, x_s, x_t, config, state_dims=state_dims, progress=progress)
+        new_alignment = []
+        with torch.no_grad():
+            for e in range(len(pairs)):
+                emb_s = model.shared_source(torch.as_tensor(rows[2 * e])).mean.numpy()
+                emb_t = model.shared_target(torch.as_tensor(rows[2 * e + 1])).mean.numpy()
+                new_alignment.append(dtw_indices(emb_s, emb_t))
+        changed = [
+            float(
+                np.mean(_partner(old, len(pairs[e][0].obs)) != _partner(new, len(pairs[e][0].obs)))
+            )
+            for e, (old, new) in enumerate(zip(alignment, new_alignment, strict=True))
+        ]
+        stats.append({"round": float(round_index + 1), "moved_fraction": float(np.mean(changed))})
+        alignment = new_alignment
+    return alignment, stats
+
+
+def _partner(alignment: tuple[np.ndarray, np.ndarray], length_source: int) -> np.ndarray:
+    """For each source step, the mean target step it is paired with (NaN if unpaired)."""
+    i_s, i_t = alignment
+    total = np.bincount(i_s, weights=i_t, minlength=length_source)
+    count = np.bincount(i_s, minlength=length_source)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
 def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
@@ -229,9 +315,7 @@ def train_model(
         tgt_env.single_observation_space.shape[0],
         tgt_env.single_action_space.shape[0],
     )
-    model_cfg = dataclasses.replace(preset.model, seed=seed)
-    if epochs is not None:
-        model_cfg = dataclasses.replace(model_cfg, epochs=epochs)
+    model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     config = {
         "stage": "model",
         "pair": pair,
@@ -328,8 +412,14 @@ def transfer(
     runs_root: Path = DEFAULT_RUNS,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """PPO of the target agent on the target task, with the Eq. 10 shaping of ``method``'s
-    model, or none for ``method="ppo"`` (``pved transfer``). Returns ``result.json``."""
+    """PPO of the target agent on the target task (``pved transfer``); returns
+    ``result.json``.
+
+    ``method`` is a model name (``pved``, a variant, ``gupta2017``: the target agent's
+    restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
+    restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
+    the target could do if the reward told it everything). Evaluation always uses the
+    target task's default env, so every method is measured alike."""
     torch.set_num_threads(1)
     preset = get_preset(pair)
     tcfg = preset.transfer
@@ -354,7 +444,12 @@ def transfer(
         "final_eval_episodes": final_episodes,
     }
     shaping_inputs: tuple[Path, Path] | None = None
-    if method != NO_TRANSFER:
+    train_env_kwargs: dict[str, Any] = {}
+    if method == ORACLE:
+        train_env_kwargs = {"reward": "full"}
+        config["train_reward"] = "full"
+    elif method != NO_TRANSFER:
+        model_class(method)  # an unknown method name fails here, before any file check
         m_path = Path(model_path) if model_path else default_model_path(pair, method, runs_root)
         b_path = (
             Path(bank_path)
@@ -373,11 +468,13 @@ def transfer(
     if run.is_done():
         return run.read_result()
     run.start()
-    env = make_batched(name, ppo.num_envs)
+    env = make_batched(name, ppo.num_envs, **train_env_kwargs)
     if shaping_inputs is not None:
         model = load_model(shaping_inputs[0])
         if model.metadata.get("target_agent") not in (None, preset.target_agent):
             raise PvedError(f"model {shaping_inputs[0]} was trained for another pair")
+        if model.name != method:
+            raise PvedError(f"model {shaping_inputs[0]} is a {model.name!r} model, not {method!r}")
         bank = load_bank(shaping_inputs[1])
         shaping = LatentShaping(model, bank, beta, env.robot_state_indices)
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)

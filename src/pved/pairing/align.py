@@ -1,5 +1,12 @@
-"""Time alignment of a pair of episodes (paper IV.A: "we align the trajectories between
-the two agents by subsampling the longer trajectories along the timesteps")."""
+"""Time alignment of a pair of episodes.
+
+- ``subsample`` (paper IV.A: "we align the trajectories between the two agents by
+  subsampling the longer trajectories along the timesteps"): by time alone.
+- ``dtw``: dynamic time warping of the two episodes' embeddings in a learned shared
+  space, as Gupta et al. (2017) align their agents; :func:`dtw_indices` aligns one pair
+  given the embeddings, and ``pved.experiments.stages.collect_pairs`` runs the rounds
+  (subsample → train → embed → warp → retrain).
+"""
 
 from __future__ import annotations
 
@@ -7,7 +14,9 @@ import numpy as np
 
 from pved.errors import PvedError
 
-ALIGNMENTS = ("subsample",)
+ALIGNMENTS = ("subsample", "dtw")
+#: Alignments that need a learned shared space (run by the collect-pairs stage).
+LEARNED_ALIGNMENTS = ("dtw",)
 
 
 def subsample_indices(length_source: int, length_target: int) -> tuple[np.ndarray, np.ndarray]:
@@ -31,8 +40,41 @@ def subsample_indices(length_source: int, length_target: int) -> tuple[np.ndarra
     return spread(length_source), spread(length_target)
 
 
+def dtw_indices(
+    embedding_source: np.ndarray, embedding_target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The DTW warping path between two episodes' embeddings (Euclidean local cost).
+
+    Every step of both episodes appears at least once, the path is monotone and starts
+    and ends with both episodes' first and last steps; a step may be paired with several
+    steps of the other episode. Computed by ``dtaidistance`` (C implementation).
+
+    Args:
+        embedding_source: (L_S, K) e.g. the source's shared means per step.
+        embedding_target: (L_T, K) the target's, in the same space.
+
+    Returns:
+        (idx_source, idx_target), each (P,) int64 with max(L_S, L_T) <= P < L_S + L_T.
+    """
+    from dtaidistance import dtw_ndim
+
+    a = np.ascontiguousarray(embedding_source, dtype=np.float64)
+    b = np.ascontiguousarray(embedding_target, dtype=np.float64)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1] or not (len(a) and len(b)):
+        raise PvedError(
+            f"DTW needs two non-empty (L, K) embeddings of equal K, got {a.shape} and {b.shape}"
+        )
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        raise PvedError("DTW embeddings contain NaN or inf")
+    path = np.asarray(dtw_ndim.warping_path(a, b, use_c=True), dtype=np.int64)
+    return path[:, 0].copy(), path[:, 1].copy()
+
+
 def align(method: str, length_source: int, length_target: int) -> tuple[np.ndarray, np.ndarray]:
-    """Dispatch on the alignment ``method``; an unknown one raises :class:`PvedError`."""
+    """Dispatch on a time-only alignment ``method``; an unknown one raises
+    :class:`PvedError`, a learned one (``dtw``) says where it is run."""
     if method == "subsample":
         return subsample_indices(length_source, length_target)
+    if method in LEARNED_ALIGNMENTS:
+        raise PvedError(f"alignment {method!r} needs a learned shared space; use the stage")
     raise PvedError(f"unknown alignment {method!r}; known: {', '.join(ALIGNMENTS)}")

@@ -74,7 +74,10 @@ def rollout_first_episodes(
     ]
 
 
-def collect_pairs(
+EpisodePair = tuple[Episode, Episode]
+
+
+def collect_episode_pairs(
     source_env: BatchedEnv,
     target_env: BatchedEnv,
     source_policy: Policy,
@@ -82,13 +85,11 @@ def collect_pairs(
     episodes: int,
     *,
     shared_task_keys: tuple[str, ...],
-    align_method: str = "subsample",
     deterministic: bool = True,
     seed: int = 0,
-    header: Mapping[str, Any] | None = None,
     progress: bool = True,
-) -> PairedDataset:
-    """Collect ``episodes`` paired episodes and align them into a :class:`PairedDataset`.
+) -> list[EpisodePair]:
+    """Run ``episodes`` paired episodes and return them unaligned, source first.
 
     Per batch, the source env draws the task parameters named in ``shared_task_keys``
     (e.g. ``("target",)``) and the target env is reset with exactly those, so both agents
@@ -111,14 +112,9 @@ def collect_pairs(
                 f"act {env.single_action_space.shape[0]})"
             )
     n = source_env.num_envs
-    batches = -(-episodes // n)
-    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("os", "as", "ot", "at", "ep", "ts", "tt")}
-    task: dict[str, list[np.ndarray]] = {k: [] for k in shared_task_keys}
-    lengths: list[tuple[int, int]] = []
-    successes: list[tuple[bool, bool]] = []
-    ep_index = 0
-    bar = tqdm(total=batches * n, desc="collect pairs", unit="ep", disable=not progress)
-    for b in range(batches):
+    pairs: list[EpisodePair] = []
+    bar = tqdm(total=episodes, desc="collect pairs", unit="ep", disable=not progress)
+    for b in range(-(-episodes // n)):
         batch_seed = seed + b * n
         src = rollout_first_episodes(source_env, source_policy, batch_seed, None, deterministic)
         shared = {k: np.stack([e.reset_info[k] for e in src]) for k in shared_task_keys}
@@ -127,43 +123,51 @@ def collect_pairs(
             for k in shared_task_keys:
                 if not np.allclose(e_s.reset_info[k], e_t.reset_info[k]):
                     raise PvedError(f"target env did not accept the shared task parameter {k!r}")
-            i_s, i_t = align(align_method, len(e_s.obs), len(e_t.obs))
-            rows["os"].append(e_s.obs[i_s])
-            rows["as"].append(e_s.act[i_s])
-            rows["ot"].append(e_t.obs[i_t])
-            rows["at"].append(e_t.act[i_t])
-            rows["ep"].append(np.full(len(i_s), ep_index, dtype=np.int64))
-            rows["ts"].append(i_s)
-            rows["tt"].append(i_t)
-            for k in shared_task_keys:
-                task[k].append(e_s.reset_info[k])
-            lengths.append((len(e_s.obs), len(e_t.obs)))
-            successes.append((e_s.success, e_t.success))
-            ep_index += 1
-        bar.update(n)
+        # keep exactly ``episodes`` pairs (the last batch may overshoot)
+        pairs.extend(list(zip(src, tgt, strict=True))[: episodes - len(pairs)])
+        bar.update(min(n, episodes - bar.n))
     bar.close()
-    # keep exactly ``episodes`` episodes (the last batch may overshoot)
-    keep = np.concatenate(rows["ep"]) < episodes
-    cat = {k: np.concatenate(v)[keep] for k, v in rows.items()}
-    success_arr = np.asarray(successes[:episodes], dtype=bool)
-    length_arr = np.asarray(lengths[:episodes], dtype=np.int64)
+    return pairs
+
+
+def pairs_to_dataset(
+    pairs: list[EpisodePair],
+    alignment: list[tuple[np.ndarray, np.ndarray]],
+    *,
+    shared_task_keys: tuple[str, ...],
+    header: Mapping[str, Any],
+) -> PairedDataset:
+    """Aligned rows of ``pairs``: episode e contributes rows ``(obs_S[i_s], obs_T[i_t])``
+    for its ``alignment[e] = (i_s, i_t)`` (equal-length index arrays).
+
+    ``header`` must already hold the agents' robot-state indices and dims; the episode
+    statistics (success rates, mean lengths) are added here.
+    """
+    if len(alignment) != len(pairs):
+        raise PvedError(f"{len(alignment)} alignments for {len(pairs)} episode pairs")
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("os", "as", "ot", "at", "ep", "ts", "tt")}
+    for index, ((e_s, e_t), (i_s, i_t)) in enumerate(zip(pairs, alignment, strict=True)):
+        i_s, i_t = np.asarray(i_s, dtype=np.int64), np.asarray(i_t, dtype=np.int64)
+        if i_s.shape != i_t.shape or i_s.ndim != 1:
+            raise PvedError(f"episode {index}: alignment index arrays differ in shape")
+        rows["os"].append(e_s.obs[i_s])
+        rows["as"].append(e_s.act[i_s])
+        rows["ot"].append(e_t.obs[i_t])
+        rows["at"].append(e_t.act[i_t])
+        rows["ep"].append(np.full(len(i_s), index, dtype=np.int64))
+        rows["ts"].append(i_s)
+        rows["tt"].append(i_t)
+    cat = {k: np.concatenate(v) for k, v in rows.items()}
+    success = np.array([(e_s.success, e_t.success) for e_s, e_t in pairs], dtype=bool)
+    length = np.array([(len(e_s.obs), len(e_t.obs)) for e_s, e_t in pairs], dtype=np.int64)
     full_header = {
-        **(dict(header) if header else {}),
-        "robot_state_indices_source": [int(i) for i in source_env.robot_state_indices],
-        "robot_state_indices_target": [int(i) for i in target_env.robot_state_indices],
-        "obs_dim_source": int(source_env.single_observation_space.shape[0]),
-        "act_dim_source": int(source_env.single_action_space.shape[0]),
-        "obs_dim_target": int(target_env.single_observation_space.shape[0]),
-        "act_dim_target": int(target_env.single_action_space.shape[0]),
-        "alignment": align_method,
-        "deterministic_actions": deterministic,
-        "seed": seed,
-        "episodes": episodes,
+        **dict(header),
+        "episodes": len(pairs),
         "shared_task_keys": list(shared_task_keys),
-        "success_rate_source": float(success_arr[:, 0].mean()),
-        "success_rate_target": float(success_arr[:, 1].mean()),
-        "mean_length_source": float(length_arr[:, 0].mean()),
-        "mean_length_target": float(length_arr[:, 1].mean()),
+        "success_rate_source": float(success[:, 0].mean()),
+        "success_rate_target": float(success[:, 1].mean()),
+        "mean_length_source": float(length[:, 0].mean()),
+        "mean_length_target": float(length[:, 1].mean()),
     }
     return PairedDataset(
         obs_source=cat["os"],
@@ -173,6 +177,60 @@ def collect_pairs(
         episode=cat["ep"],
         t_source=cat["ts"],
         t_target=cat["tt"],
-        task={k: np.stack(v[:episodes]) for k, v in task.items()},
+        task={k: np.stack([e_s.reset_info[k] for e_s, _ in pairs]) for k in shared_task_keys},
         header=full_header,
     )
+
+
+def env_header(source_env: BatchedEnv, target_env: BatchedEnv) -> dict[str, Any]:
+    """What a paired dataset records of the two envs: dims and robot-state indices."""
+    return {
+        "robot_state_indices_source": [int(i) for i in source_env.robot_state_indices],
+        "robot_state_indices_target": [int(i) for i in target_env.robot_state_indices],
+        "obs_dim_source": int(source_env.single_observation_space.shape[0]),
+        "act_dim_source": int(source_env.single_action_space.shape[0]),
+        "obs_dim_target": int(target_env.single_observation_space.shape[0]),
+        "act_dim_target": int(target_env.single_action_space.shape[0]),
+    }
+
+
+def collect_pairs(
+    source_env: BatchedEnv,
+    target_env: BatchedEnv,
+    source_policy: Policy,
+    target_policy: Policy,
+    episodes: int,
+    *,
+    shared_task_keys: tuple[str, ...],
+    align_method: str = "subsample",
+    deterministic: bool = True,
+    seed: int = 0,
+    header: Mapping[str, Any] | None = None,
+    progress: bool = True,
+) -> PairedDataset:
+    """Collect ``episodes`` paired episodes and align them by time alone
+    (:func:`pved.pairing.align.align`) into a :class:`PairedDataset`.
+
+    Alignments that need a learned model (DTW on shared means) start from this one; the
+    stage ``pved.experiments.stages.collect_pairs`` runs them.
+    """
+    pairs = collect_episode_pairs(
+        source_env,
+        target_env,
+        source_policy,
+        target_policy,
+        episodes,
+        shared_task_keys=shared_task_keys,
+        deterministic=deterministic,
+        seed=seed,
+        progress=progress,
+    )
+    alignment = [align(align_method, len(e_s.obs), len(e_t.obs)) for e_s, e_t in pairs]
+    full_header = {
+        **(dict(header) if header else {}),
+        **env_header(source_env, target_env),
+        "alignment": align_method,
+        "deterministic_actions": deterministic,
+        "seed": seed,
+    }
+    return pairs_to_dataset(pairs, alignment, shared_task_keys=shared_task_keys, header=full_header)
