@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
@@ -115,6 +116,27 @@ class PVEDConfig(ModelConfig):
             raise PvedError(f"config: min_decoder_std must be > 0, got {self.min_decoder_std}")
 
 
+def encoder_trunk(in_dim: int, hidden: int) -> nn.Sequential:
+    """The first two layers of every encoder, (B, in_dim) -> (B, hidden), ReLU (paper III.G);
+    the third layer is the model's own head(s)."""
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
+
+
+def to_diag_gaussian(out: torch.Tensor) -> DiagGaussian:
+    """A Gaussian head's output (B, 2K) as (mean, logvar), each (B, K), the log-variance
+    softly bounded to :data:`ENCODER_LOGVAR_BOUNDS`."""
+    mean, raw_logvar = out.chunk(2, dim=-1)
+    return DiagGaussian(mean, soft_clamp(raw_logvar, *ENCODER_LOGVAR_BOUNDS))
+
+
+def check_same_batch(x_S: torch.Tensor, x_T: torch.Tensor) -> None:
+    """Paired inputs must have as many source as target rows."""
+    if x_S.shape[0] != x_T.shape[0]:
+        raise PvedError(
+            f"source and target batches differ in size: {x_S.shape[0]} vs {x_T.shape[0]}"
+        )
+
+
 class GaussianEncoder(nn.Module):
     """q(c, y | x): a trunk shared by both subspaces, then one head per subspace.
 
@@ -124,25 +146,18 @@ class GaussianEncoder(nn.Module):
 
     def __init__(self, in_dim: int, shared_dim: int, individual_dim: int, hidden: int):
         super().__init__()
-        self.trunk = nn.Sequential(
-            nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
-        )
+        self.trunk = encoder_trunk(in_dim, hidden)
         self.head_c = nn.Linear(hidden, 2 * shared_dim)
         self.head_y = nn.Linear(hidden, 2 * individual_dim) if individual_dim > 0 else None
 
-    @staticmethod
-    def _split(out: torch.Tensor) -> DiagGaussian:
-        mean, raw_logvar = out.chunk(2, dim=-1)
-        return DiagGaussian(mean, soft_clamp(raw_logvar, *ENCODER_LOGVAR_BOUNDS))
-
     def forward(self, x: torch.Tensor) -> tuple[DiagGaussian, DiagGaussian | None]:
         h = self.trunk(x)
-        q_y = self._split(self.head_y(h)) if self.head_y is not None else None
-        return self._split(self.head_c(h)), q_y
+        q_y = to_diag_gaussian(self.head_y(h)) if self.head_y is not None else None
+        return to_diag_gaussian(self.head_c(h)), q_y
 
     def shared(self, x: torch.Tensor) -> DiagGaussian:
         """Only the c posterior (skips the y head): (B, D) -> (B, C)."""
-        return self._split(self.head_c(self.trunk(x)))
+        return to_diag_gaussian(self.head_c(self.trunk(x)))
 
 
 class Decoder(nn.Module):
@@ -193,51 +208,110 @@ class Decoder(nn.Module):
         return self.min_logvar + F.softplus(self.raw_logvar - self.min_logvar)
 
 
+def decoder_from_config(cfg: PVEDConfig, individual_dim: int, out_dim: int) -> Decoder:
+    """A :class:`Decoder` with ``cfg``'s shared dim, widths, slope and likelihood variance;
+    ``individual_dim=0`` gives a c-only decoder (Eq. 8)."""
+    return Decoder(
+        cfg.shared_dim,
+        individual_dim,
+        out_dim,
+        cfg.hidden,
+        cfg.leaky_slope,
+        cfg.decoder_variance == "learned",
+        cfg.min_decoder_std,
+    )
+
+
+def eq9_objective(cfg: PVEDConfig, parts: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C (to maximise)."""
+    return (
+        cfg.alpha1 * (parts["L_ST"] + parts["L_TS"])
+        + cfg.alpha2 * (parts["L_SS"] + parts["L_TT"])
+        + cfg.alpha3 * parts["L_C"]
+    )
+
+
 class PVED(SharedSpaceModel):
-    """The paired variational encoder-decoder (see the module docstring for Eqs. 2–10)."""
+    """The paired variational encoder-decoder (see the module docstring for Eqs. 2–10).
+
+    Two switches, off here, give two of the paper's ablations (IV.B) the same networks
+    and objective "with the other components fixed" (``pved.models.variants``):
+    ``states_only`` narrows what the networks see of a row x = (s, a) to its state s, and
+    ``crossed_posteriors = False`` feeds each (c, y) decoder its own agent's posterior.
+    """
 
     name = "pved"
-    config_class = PVEDConfig
+    # Typed as the base's, not type[PVEDConfig]: a variant's config class may fix a field
+    # (init=False), so its constructor is not PVEDConfig's.
+    config_class: ClassVar[type[ModelConfig]] = PVEDConfig
     config: PVEDConfig
+    #: The networks see (and the decoders reconstruct) only the state s of each row.
+    states_only: ClassVar[bool] = False
+    #: Eqs. 2 and 6 as in the paper: the posterior inferred from x_S feeds p_θT (which
+    #: reconstructs x_T) and the one inferred from x_T feeds p_θS. False: each agent's own.
+    crossed_posteriors: ClassVar[bool] = True
 
     def __init__(self, dims: ModelDims, config: PVEDConfig | None = None):
-        super().__init__(dims, config if config is not None else PVEDConfig())
+        super().__init__(dims, config if config is not None else self.config_class())
         cfg = self.config
         c_dim, y_dim, hid = cfg.shared_dim, cfg.individual_dim, cfg.hidden
-        learned = cfg.decoder_variance == "learned"
-
-        def decoder(individual_dim: int, out_dim: int) -> Decoder:
-            return Decoder(
-                c_dim, individual_dim, out_dim, hid, cfg.leaky_slope, learned, cfg.min_decoder_std
+        #: How many leading entries of x_S / x_T the networks see: all, or the state.
+        self.source_width = dims.source_state_dim if self.states_only else dims.source_dim
+        self.target_width = dims.target_state_dim if self.states_only else dims.target_dim
+        if min(self.source_width, self.target_width) < 1:
+            raise PvedError(
+                f"model {self.name!r} sees only the robot states, but a state dim is 0 "
+                f"(source {dims.source_state_dim}, target {dims.target_state_dim})"
             )
+        w_S, w_T = self.source_width, self.target_width
 
         # q_φS(c_T, y_T | s_S, a_S) and q_φT(c_S, y_S | s_T, a_T)
-        self.encoder_S = GaussianEncoder(dims.source_dim, c_dim, y_dim, hid)
-        self.encoder_T = GaussianEncoder(dims.target_dim, c_dim, y_dim, hid)
+        self.encoder_S = GaussianEncoder(w_S, c_dim, y_dim, hid)
+        self.encoder_T = GaussianEncoder(w_T, c_dim, y_dim, hid)
         # p_θT(s_T, a_T | c_T, y_T) (Eq. 2) and p_θS(s_S, a_S | c_S, y_S) (Eq. 6)
-        self.decoder_T = decoder(y_dim, dims.target_dim)
-        self.decoder_S = decoder(y_dim, dims.source_dim)
+        self.decoder_T = decoder_from_config(cfg, y_dim, w_T)
+        self.decoder_S = decoder_from_config(cfg, y_dim, w_S)
         # p_θ'T(s_S, a_S | c_T) and p_θ'S(s_T, a_T | c_S) (Eq. 8)
-        self.decoder_T_prime = decoder(0, dims.source_dim)
-        self.decoder_S_prime = decoder(0, dims.target_dim)
+        self.decoder_T_prime = decoder_from_config(cfg, 0, w_S)
+        self.decoder_S_prime = decoder_from_config(cfg, 0, w_T)
+
+    # -- what the networks see -----------------------------------------------------------
+    def features_source(self, x_S: torch.Tensor) -> torch.Tensor:
+        """Raw x_S (B, D_S) -> the standardised entries the networks see, (B, W_S): all of
+        them, or the state's only when ``states_only`` (W_S = D_S or S_S)."""
+        return self.standardize_source(x_S)[:, : self.source_width]
+
+    def features_target(self, x_T: torch.Tensor) -> torch.Tensor:
+        """Raw x_T (B, D_T) -> the standardised entries the networks see, (B, W_T)."""
+        return self.standardize_target(x_T)[:, : self.target_width]
+
+    def features_to_raw_source(self, z: torch.Tensor) -> torch.Tensor:
+        """Inverse of :meth:`features_source`: (B, W_S) standardised -> (B, W_S) raw."""
+        width = self.source_width
+        return z * self.source_norm.std[:width] + self.source_norm.mean[:width]
+
+    def features_to_raw_target(self, z: torch.Tensor) -> torch.Tensor:
+        """Inverse of :meth:`features_target`: (B, W_T) standardised -> (B, W_T) raw."""
+        width = self.target_width
+        return z * self.target_norm.std[:width] + self.target_norm.mean[:width]
 
     # -- posteriors ----------------------------------------------------------------------
     def encode_source(self, x_S: torch.Tensor) -> tuple[DiagGaussian, DiagGaussian | None]:
         """q_φS(c_T, y_T | x_S) from raw x_S (B, D_S): ((B, C), (B, Y) or None)."""
-        return self.encoder_S(self.standardize_source(x_S))
+        return self.encoder_S(self.features_source(x_S))
 
     def encode_target(self, x_T: torch.Tensor) -> tuple[DiagGaussian, DiagGaussian | None]:
         """q_φT(c_S, y_S | x_T) from raw x_T (B, D_T): ((B, C), (B, Y) or None)."""
-        return self.encoder_T(self.standardize_target(x_T))
+        return self.encoder_T(self.features_target(x_T))
 
     def shared_source(self, x_S: torch.Tensor) -> SharedRep:
         """q_φS(c_T | x_S) as (mean, logvar), each (B, C)."""
-        q = self.encoder_S.shared(self.standardize_source(x_S))
+        q = self.encoder_S.shared(self.features_source(x_S))
         return SharedRep(q.mean, q.logvar)
 
     def shared_target(self, x_T: torch.Tensor) -> SharedRep:
         """q_φT(c_S | x_T) as (mean, logvar), each (B, C)."""
-        q = self.encoder_T.shared(self.standardize_target(x_T))
+        q = self.encoder_T.shared(self.features_target(x_T))
         return SharedRep(q.mean, q.logvar)
 
     def individual_source(self, x_S: torch.Tensor) -> SharedRep | None:
@@ -255,13 +329,9 @@ class PVED(SharedSpaceModel):
         """KL(q_φS(c_T | x_S) ‖ q_φT(c_S | x_T)) in closed form: (B, D_S), (B, D_T) -> (B,).
 
         The reward term of Eq. 10 is ``−β`` times this."""
-        q_s = self.encoder_S.shared(self.standardize_source(x_S))
-        q_t = self.encoder_T.shared(self.standardize_target(x_T))
-        if q_s.mean.shape[0] != q_t.mean.shape[0]:
-            raise PvedError(
-                f"source and target batches differ in size: {q_s.mean.shape[0]} vs "
-                f"{q_t.mean.shape[0]}"
-            )
+        q_s = self.encoder_S.shared(self.features_source(x_S))
+        q_t = self.encoder_T.shared(self.features_target(x_T))
+        check_same_batch(q_s.mean, q_t.mean)
         return kl_diag_gaussians(q_s.mean, q_s.logvar, q_t.mean, q_t.logvar)
 
     def shaping(self, x_S: torch.Tensor, x_T: torch.Tensor) -> torch.Tensor:
@@ -272,32 +342,32 @@ class PVED(SharedSpaceModel):
     @torch.no_grad()
     def predict_target(self, x_S: torch.Tensor) -> torch.Tensor:
         """Mean of p_θT(x_T | c_T, y_T) at the means of q_φS(c_T, y_T | x_S), raw units:
-        (B, D_S) -> (B, D_T). The cross-agent prediction that Eq. 2 trains."""
+        (B, D_S) -> (B, W_T). The cross-agent prediction that Eq. 2 trains."""
         q_c, q_y = self.encode_source(x_S)
         mean = self.decoder_T(q_c.mean, None if q_y is None else q_y.mean)
-        return self.target_norm.inverse(mean)
+        return self.features_to_raw_target(mean)
 
     @torch.no_grad()
     def predict_source(self, x_T: torch.Tensor) -> torch.Tensor:
         """Mean of p_θS(x_S | c_S, y_S) at the means of q_φT(c_S, y_S | x_T), raw units:
-        (B, D_T) -> (B, D_S) (Eq. 6)."""
+        (B, D_T) -> (B, W_S) (Eq. 6)."""
         q_c, q_y = self.encode_target(x_T)
         mean = self.decoder_S(q_c.mean, None if q_y is None else q_y.mean)
-        return self.source_norm.inverse(mean)
+        return self.features_to_raw_source(mean)
 
     @torch.no_grad()
     def reconstruct_source(self, x_S: torch.Tensor) -> torch.Tensor:
         """Mean of p_θ'T(x_S | c_T) at the mean of q_φS(c_T | x_S), raw units (Eq. 8):
-        (B, D_S) -> (B, D_S)."""
-        q_c = self.encoder_S.shared(self.standardize_source(x_S))
-        return self.source_norm.inverse(self.decoder_T_prime(q_c.mean))
+        (B, D_S) -> (B, W_S)."""
+        q_c = self.encoder_S.shared(self.features_source(x_S))
+        return self.features_to_raw_source(self.decoder_T_prime(q_c.mean))
 
     @torch.no_grad()
     def reconstruct_target(self, x_T: torch.Tensor) -> torch.Tensor:
         """Mean of p_θ'S(x_T | c_S) at the mean of q_φT(c_S | x_T), raw units (Eq. 8):
-        (B, D_T) -> (B, D_T)."""
-        q_c = self.encoder_T.shared(self.standardize_target(x_T))
-        return self.target_norm.inverse(self.decoder_S_prime(q_c.mean))
+        (B, D_T) -> (B, W_T)."""
+        q_c = self.encoder_T.shared(self.features_target(x_T))
+        return self.features_to_raw_target(self.decoder_S_prime(q_c.mean))
 
     # -- the objective (Eq. 9) -----------------------------------------------------------
     def loss(
@@ -308,44 +378,52 @@ class PVED(SharedSpaceModel):
         Returns scalars (batch means): the five Eq. 9 terms ``L_ST, L_TS, L_SS, L_TT, L_C``
         (to maximise, as in the paper), their pieces ``loglik_XY`` and ``kl_XY`` (so
         ``L_XY = loglik_XY − kl_XY``), and ``total`` = −L to MINIMISE.
+
+        With ``crossed_posteriors = False`` (pved-vae) only the inputs of p_θT and p_θS
+        change: each is fed, and its Eq. 2 / Eq. 6 prior KL taken on, its own agent's
+        posterior; Eqs. 7 and 8 are the same computation.
         """
-        xs = self.standardize_source(x_S)
-        xt = self.standardize_target(x_T)
-        if xs.shape[0] != xt.shape[0]:
-            raise PvedError(
-                f"source and target batches differ in size: {xs.shape[0]} vs {xt.shape[0]}"
-            )
-        q_cT, q_yT = self.encoder_S(xs)  # q_φS(c_T, y_T | x_S)
-        q_cS, q_yS = self.encoder_T(xt)  # q_φT(c_S, y_S | x_T)
-        c_T = reparameterize(q_cT.mean, q_cT.logvar, generator)
-        c_S = reparameterize(q_cS.mean, q_cS.logvar, generator)
-        y_T = None if q_yT is None else reparameterize(q_yT.mean, q_yT.logvar, generator)
-        y_S = None if q_yS is None else reparameterize(q_yS.mean, q_yS.logvar, generator)
+        xs = self.features_source(x_S)
+        xt = self.features_target(x_T)
+        check_same_batch(xs, xt)
+        # Named by the data they are inferred from: "_S" from x_S, "_T" from x_T. In PVED
+        # the one from x_S is q_φS(c_T, y_T | x_S), the target's factors (Eq. 2).
+        q_c_S, q_y_S = self.encoder_S(xs)
+        q_c_T, q_y_T = self.encoder_T(xt)
+        c_S = reparameterize(q_c_S.mean, q_c_S.logvar, generator)
+        c_T = reparameterize(q_c_T.mean, q_c_T.logvar, generator)
+        y_S = None if q_y_S is None else reparameterize(q_y_S.mean, q_y_S.logvar, generator)
+        y_T = None if q_y_T is None else reparameterize(q_y_T.mean, q_y_T.logvar, generator)
 
-        kl_cT = kl_standard_normal(q_cT.mean, q_cT.logvar)
-        kl_cS = kl_standard_normal(q_cS.mean, q_cS.logvar)
-        kl_yT = kl_standard_normal(*q_yT) if q_yT is not None else torch.zeros_like(kl_cT)
-        kl_yS = kl_standard_normal(*q_yS) if q_yS is not None else torch.zeros_like(kl_cS)
+        kl_c_S = kl_standard_normal(q_c_S.mean, q_c_S.logvar)
+        kl_c_T = kl_standard_normal(q_c_T.mean, q_c_T.logvar)
+        kl_y_S = kl_standard_normal(*q_y_S) if q_y_S is not None else torch.zeros_like(kl_c_S)
+        kl_y_T = kl_standard_normal(*q_y_T) if q_y_T is not None else torch.zeros_like(kl_c_T)
 
-        # Eq. 2: the source's posterior over the TARGET's factors reconstructs x_T.
-        ll_ST = gaussian_log_likelihood(xt, self.decoder_T(c_T, y_T), self.decoder_T.logvar)
-        # Eq. 6: the target's posterior over the SOURCE's factors reconstructs x_S.
-        ll_TS = gaussian_log_likelihood(xs, self.decoder_S(c_S, y_S), self.decoder_S.logvar)
+        # Eqs. 2 and 6: PVED reconstructs x_T from the posterior inferred from x_S and
+        # x_S from the one inferred from x_T; pved-vae each from its own.
+        from_S = (c_S, y_S, kl_c_S + kl_y_S)
+        from_T = (c_T, y_T, kl_c_T + kl_y_T)
+        (c_in_T, y_in_T, kl_in_T), (c_in_S, y_in_S, kl_in_S) = (
+            (from_S, from_T) if self.crossed_posteriors else (from_T, from_S)
+        )
+        ll_ST = gaussian_log_likelihood(xt, self.decoder_T(c_in_T, y_in_T), self.decoder_T.logvar)
+        ll_TS = gaussian_log_likelihood(xs, self.decoder_S(c_in_S, y_in_S), self.decoder_S.logvar)
         # Eq. 8: each shared posterior alone reconstructs its OWN encoder's input.
-        ll_SS = gaussian_log_likelihood(xs, self.decoder_T_prime(c_T), self.decoder_T_prime.logvar)
-        ll_TT = gaussian_log_likelihood(xt, self.decoder_S_prime(c_S), self.decoder_S_prime.logvar)
-        # Eq. 7: consistency of the two shared posteriors.
-        kl_C = kl_diag_gaussians(q_cT.mean, q_cT.logvar, q_cS.mean, q_cS.logvar)
+        ll_SS = gaussian_log_likelihood(xs, self.decoder_T_prime(c_S), self.decoder_T_prime.logvar)
+        ll_TT = gaussian_log_likelihood(xt, self.decoder_S_prime(c_T), self.decoder_S_prime.logvar)
+        # Eq. 7: consistency of the two shared posteriors, the one from x_S first.
+        kl_C = kl_diag_gaussians(q_c_S.mean, q_c_S.logvar, q_c_T.mean, q_c_T.logvar)
 
         parts = {
             "loglik_ST": ll_ST.mean(),
-            "kl_ST": (kl_cT + kl_yT).mean(),
+            "kl_ST": kl_in_T.mean(),
             "loglik_TS": ll_TS.mean(),
-            "kl_TS": (kl_cS + kl_yS).mean(),
+            "kl_TS": kl_in_S.mean(),
             "loglik_SS": ll_SS.mean(),
-            "kl_SS": kl_cT.mean(),
+            "kl_SS": kl_c_S.mean(),
             "loglik_TT": ll_TT.mean(),
-            "kl_TT": kl_cS.mean(),
+            "kl_TT": kl_c_T.mean(),
         }
         for term in ("ST", "TS", "SS", "TT"):
             parts[f"L_{term}"] = parts[f"loglik_{term}"] - parts[f"kl_{term}"]
@@ -355,9 +433,4 @@ class PVED(SharedSpaceModel):
 
     def objective(self, parts: dict[str, torch.Tensor]) -> torch.Tensor:
         """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C."""
-        cfg = self.config
-        return (
-            cfg.alpha1 * (parts["L_ST"] + parts["L_TS"])
-            + cfg.alpha2 * (parts["L_SS"] + parts["L_TT"])
-            + cfg.alpha3 * parts["L_C"]
-        )
+        return eq9_objective(self.config, parts)

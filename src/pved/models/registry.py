@@ -18,12 +18,20 @@ from typing import Any
 
 from pved.errors import PvedError
 from pved.models.base import ModelConfig, ModelDims, SharedSpaceModel, config_from_dict
+from pved.models.gupta import Gupta2017
 from pved.models.pved import PVED
+from pved.models.variants import PVEDVAE, PVEDDetShared, PVEDSharedOnly, PVEDStateOnly
 from pved.runs import atomic_torch_save, safe_torch_load, to_jsonable
 
 #: Model name -> class. Names are the ones the CLI and configs use.
 MODELS: dict[str, type[SharedSpaceModel]] = {
     "pved": PVED,
+    # The ablations of paper IV.B and the Gupta et al. 2017 baseline.
+    "pved-state-only": PVEDStateOnly,
+    "pved-shared-only": PVEDSharedOnly,
+    "pved-det-shared": PVEDDetShared,
+    "pved-vae": PVEDVAE,
+    "gupta2017": Gupta2017,
 }
 
 MODEL_FORMAT = "pved-model"
