@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from pved.cli import main
+from pved.models import MODELS, load_model
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
 
@@ -177,3 +178,26 @@ def test_dtw_alignment_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         assert (t_s[0], t_t[0]) == (0, 0) and (t_s[-1], t_t[-1]) == (49, 49)
         assert np.all(np.diff(t_s) >= 0) and np.all(np.diff(t_t) >= 0)
     assert 0.0 <= data.header["dtw"][-1]["moved_fraction"] <= 1.0
+
+
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_every_model_trains_and_shapes_through_the_cli(
+    pipeline: Path, tmp_path: Path, model: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = pipeline / "reacher"
+    dataset = root / "pairs/subsample/seed0/pairs.npz"
+    bank = root / "bank/Reacher3-Push/seed0/bank.npz"
+    code, out, err = run_cli(capsys, "train-model", "--runs", tmp_path, "--model", model,
+                             "--dataset", dataset, "--epochs", "1")  # fmt: skip
+    assert code == 0, err
+    model_file = Path(out.strip())
+    assert load_model(model_file).name == model
+    code, out, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", model,
+                             "--model-path", model_file, "--bank", bank, "--steps", "2048",
+                             "--eval-every", "2048", "--eval-episodes", "16",
+                             "--final-eval-episodes", "16")  # fmt: skip
+    assert code == 0, err
+    run = tmp_path / "reacher/transfer" / model / "seed20000"
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    shaping = [r["rollout/reward_shaping"] for r in rows if "rollout/reward_shaping" in r]
+    assert shaping and all(v < 0 for v in shaping)  # −β·distance, averaged over the rollout
