@@ -201,3 +201,13 @@ def test_every_model_trains_and_shapes_through_the_cli(
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     shaping = [r["rollout/reward_shaping"] for r in rows if "rollout/reward_shaping" in r]
     assert shaping and all(v < 0 for v in shaping)  # −β·distance, averaged over the rollout
+
+
+def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -> None:
+    from pved.config import get_preset
+
+    code = main(["transfer", "--runs", str(tmp_path), "--model", "ppo", "--steps", "2048",
+                 "--eval-episodes", "16", "--final-eval-episodes", "16"])  # fmt: skip
+    assert code == 0
+    config = json.loads((tmp_path / "reacher/transfer/ppo/seed20000/config.json").read_text())
+    assert config["config"]["ppo"]["eval_every"] == get_preset("reacher").transfer.eval_every

@@ -427,8 +427,8 @@ def transfer(
     ppo = dataclasses.replace(tcfg.ppo, seed=seed)
     if steps is not None:
         ppo = dataclasses.replace(ppo, total_steps=steps)
-    if eval_every is not None:
-        ppo = dataclasses.replace(ppo, eval_every=eval_every)
+    # the learning curve's evaluation interval: the preset's unless given
+    ppo = dataclasses.replace(ppo, eval_every=tcfg.eval_every if eval_every is None else eval_every)
     eval_episodes = tcfg.eval_episodes if eval_episodes is None else eval_episodes
     final_episodes = (
         tcfg.final_eval_episodes if final_eval_episodes is None else final_eval_episodes
