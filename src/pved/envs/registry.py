@@ -58,11 +58,30 @@ def _reacher(agent: str, task: str) -> EnvEntry:
     )
 
 
+def _locomotion(agent: str, task: str) -> EnvEntry:
+    return EnvEntry(
+        agent=agent,
+        task=task,
+        gym_entry_point=f"pved.envs.locomotion:Locomotion{task}Env",
+        batched_entry_point=f"pved.envs.locomotion:Locomotion{task}Batched",
+        kwargs={"agent": agent},
+    )
+
+
 _ENTRIES: tuple[EnvEntry, ...] = (
     _reacher("Reacher3", "Reach"),
     _reacher("Reacher4", "Reach"),
     _reacher("Reacher3", "Push"),
     _reacher("Reacher4", "Push"),
+    # Locomotion pairs (source, target): Walker2d -> Hopper, Humanoid -> Ant.
+    _locomotion("Walker2d", "Slope"),
+    _locomotion("Hopper", "Slope"),
+    _locomotion("Walker2d", "Curve"),
+    _locomotion("Hopper", "Curve"),
+    _locomotion("Humanoid", "Slope"),
+    _locomotion("Ant", "Slope"),
+    _locomotion("Humanoid", "Curve"),
+    _locomotion("Ant", "Curve"),
 )
 
 #: Every registered id and its entry.
