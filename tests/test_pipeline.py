@@ -211,3 +211,46 @@ def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -
     assert code == 0
     config = json.loads((tmp_path / "reacher/transfer/ppo/seed20000/config.json").read_text())
     assert config["config"]["ppo"]["eval_every"] == get_preset("reacher").transfer.eval_every
+
+
+@pytest.mark.parametrize(
+    ("pair", "source", "target"),
+    [("walker-hopper", "Walker2d", "Hopper"), ("humanoid-ant", "Humanoid", "Ant")],
+)
+def test_locomotion_pair_runs_through_the_pipeline_at_a_smoke_budget(
+    pair: str, source: str, target: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs = tmp_path / "runs"
+
+    def policy(agent: str, task: str) -> Path:
+        code, out, err = run_cli(capsys, "train-policy", "--runs", runs, "--agent", agent,
+                                 "--task", task, "--steps", "2048",
+                                 "--eval-episodes", "2")  # fmt: skip
+        assert code == 0, err
+        return Path(out.strip().splitlines()[-1])
+
+    src_slope, tgt_slope, src_curve = (
+        policy(source, "Slope"), policy(target, "Slope"), policy(source, "Curve")
+    )  # fmt: skip
+    code, out, err = run_cli(capsys, "collect-pairs", "--runs", runs, "--pair", pair,
+                             "--source-policy", src_slope, "--target-policy", tgt_slope,
+                             "--episodes", "16")  # fmt: skip
+    assert code == 0, err
+    data = load_dataset(Path(out.strip()))
+    # both agents of every paired episode climbed the same slope, drawn in [2, 10] degrees
+    slopes = data.task["slope_deg"]
+    assert slopes.shape[0] == 16 and np.all((slopes >= 2.0) & (slopes <= 10.0))
+    assert main(["train-model", "--runs", str(runs), "--pair", pair, "--epochs", "1"]) == 0
+    code, _, err = run_cli(capsys, "build-bank", "--runs", runs, "--pair", pair,
+                           "--source-policy", src_curve, "--episodes", "16")  # fmt: skip
+    assert code == 0, err
+    for method in ("pved", "ppo"):
+        code, out, err = run_cli(capsys, "transfer", "--runs", runs, "--pair", pair, "--model",
+                                 method, "--steps", "2048", "--eval-every", "2048",
+                                 "--eval-episodes", "2", "--final-eval-episodes", "2")  # fmt: skip
+        assert code == 0, err
+        assert "final/x_position_mean" in json.loads(out)
+    code, _, err = run_cli(capsys, "report", "--runs", runs, "--pair", pair, "--seeds",
+                           "20000", "--out", tmp_path / "report")  # fmt: skip
+    assert code == 0, err
+    assert "x_position_mean" in (tmp_path / "report/results.md").read_text()

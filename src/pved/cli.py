@@ -43,6 +43,7 @@ def _cmd_train_policy(args: argparse.Namespace) -> None:
         steps=args.steps,
         reward=args.reward,
         runs_root=args.runs,
+        eval_episodes=args.eval_episodes,
     )
     print(path)
 
@@ -122,8 +123,21 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
 
 def _cmd_report(args: argparse.Namespace) -> None:
     from pved.analysis.report import transfer_report
+    from pved.config import get_preset
 
-    print(transfer_report(args.pair, args.methods, args.seeds, args.runs, args.out))
+    preset = get_preset(args.pair)
+    title = f"{preset.source_agent} -> {preset.target_agent} on {preset.target_task}"
+    print(
+        transfer_report(
+            args.pair,
+            args.methods,
+            args.seeds,
+            args.runs,
+            args.out,
+            metric=preset.metric,
+            title=title,
+        )
+    )
 
 
 def _cmd_demo(args: argparse.Namespace) -> None:
@@ -167,6 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, help="env steps (default: the preset's)")
     p.add_argument("--reward", help="env reward variant, e.g. full")
+    p.add_argument("--eval-episodes", type=int, default=100, help="final evaluation episodes")
     p.set_defaults(func=_cmd_train_policy)
 
     p = add("collect-pairs", "paired rollouts of both agents on the training task")

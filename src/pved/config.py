@@ -67,8 +67,10 @@ class PairPreset:
     # and those a target-task episode is matched to a source bank episode on.
     shared_task_keys: tuple[str, ...] = ("target",)
     bank_match_keys: tuple[str, ...] = ("button_start",)
-    # The paper's performance measure on the target task (IV.A).
+    # The paper's performance measure on the target task (IV.A): a key of
+    # ``evaluate_policy``'s result, computed from the ``info`` entries ``eval_info_keys``.
     metric: str = "success_rate"
+    eval_info_keys: tuple[str, ...] = ()
     # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
     policy: PPOConfig = field(default_factory=PPOConfig)
     policy_overrides: tuple[tuple[str, str, PPOConfig], ...] = ()
@@ -110,7 +112,69 @@ def _reacher_preset() -> PairPreset:
     )
 
 
-PRESETS: dict[str, PairPreset] = {"reacher": _reacher_preset()}
+def _locomotion_preset(
+    name: str,
+    source: str,
+    target: str,
+    alphas: tuple[float, float, float],
+    beta: float,
+    policy_steps: tuple[tuple[str, str, int], ...],
+) -> PairPreset:
+    ppo = PPOConfig()
+    return PairPreset(
+        name=name,
+        source_agent=source,
+        target_agent=target,
+        training_task="Slope",
+        target_task="Curve",
+        model=dataclasses.replace(
+            PVEDConfig(), alpha1=alphas[0], alpha2=alphas[1], alpha3=alphas[2]
+        ),
+        # Paper IV.A: mean distance along x in 1000 steps over 100 episodes.
+        transfer=TransferConfig(beta=beta, final_eval_episodes=100, ppo=ppo),
+        # Both agents of a paired episode climb the same slope (paper IV.A).
+        shared_task_keys=("slope_deg",),
+        # Curve has no task parameter: bank episodes are drawn at random per episode.
+        bank_match_keys=(),
+        metric="x_position_mean",
+        eval_info_keys=("x_position",),
+        policy=ppo,
+        policy_overrides=tuple(
+            (agent, task, dataclasses.replace(ppo, total_steps=steps))
+            for agent, task, steps in policy_steps
+        ),
+    )
+
+
+PRESETS: dict[str, PairPreset] = {
+    "reacher": _reacher_preset(),
+    # Table 1, Walker2d-Hopper: alpha = 1, 1, 10; beta = 0.02.
+    "walker-hopper": _locomotion_preset(
+        "walker-hopper",
+        "Walker2d",
+        "Hopper",
+        (1.0, 1.0, 10.0),
+        0.02,
+        (
+            ("Walker2d", "Slope", 3_000_000),
+            ("Hopper", "Slope", 2_000_000),
+            ("Walker2d", "Curve", 3_000_000),
+        ),
+    ),
+    # Table 1, Humanoid-Ant: alpha = 2.5, 2.5, 15; beta = 0.01.
+    "humanoid-ant": _locomotion_preset(
+        "humanoid-ant",
+        "Humanoid",
+        "Ant",
+        (2.5, 2.5, 15.0),
+        0.01,
+        (
+            ("Humanoid", "Slope", 20_000_000),
+            ("Ant", "Slope", 5_000_000),
+            ("Humanoid", "Curve", 20_000_000),
+        ),
+    ),
+}
 
 
 def preset_for_agent(agent: str) -> PairPreset:

@@ -24,8 +24,8 @@ import torch
 
 from pved import __version__
 from pved.config import PairPreset, get_preset, preset_for_agent
-from pved.envs import make_batched
-from pved.envs.registry import env_id
+from pved.envs import BatchedEnv, make_batched
+from pved.envs.registry import env_id, get_entry
 from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.registry import load_model, model_class, save_model
@@ -48,6 +48,14 @@ from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
 DEFAULT_RUNS = Path("runs")
 EVAL_NUM_ENVS = 16
+
+
+def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
+    """The batched env evaluations run on: at most ``EVAL_NUM_ENVS`` copies, and no more
+    copies than episodes (a copy without an episode to run would still be stepped)."""
+    return make_batched(env_name, max(1, min(EVAL_NUM_ENVS, episodes)), **kwargs)
+
+
 NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
 ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
 REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
@@ -71,14 +79,19 @@ def _check_policy(policy: Policy, env_name: str, obs_dim: int, act_dim: int) -> 
 
 
 def _eval_fn(
-    env_name: str, episodes: int, seed: int, env_kwargs: dict[str, Any] | None = None
+    env_name: str,
+    episodes: int,
+    seed: int,
+    env_kwargs: dict[str, Any] | None = None,
+    info_keys: tuple[str, ...] = (),
 ) -> Callable[[Policy, int], dict[str, float]]:
-    """Evaluation on a fresh, unshaped copy of the env, with seeds apart from training's."""
-    env = make_batched(env_name, EVAL_NUM_ENVS, **(env_kwargs or {}))
+    """Evaluation on a fresh, unshaped copy of the env, with seeds apart from training's;
+    ``info_keys`` are averaged at episode end (e.g. ``x_position``: distance travelled)."""
+    env = _eval_env(env_name, episodes, **(env_kwargs or {}))
 
     def evaluate(policy: Policy, env_steps: int) -> dict[str, float]:
         del env_steps
-        stats = evaluate_policy(policy, env, episodes=episodes, seed=seed)
+        stats = evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
         return {f"eval/{k}": v for k, v in stats.items()}
 
     return evaluate
@@ -109,7 +122,7 @@ def train_policy(
         return policy_file
     run.start()
     env = make_batched(name, ppo.num_envs, **env_kwargs)
-    eval_fn = _eval_fn(name, eval_episodes, seed + 10**6, env_kwargs)
+    eval_fn = _eval_fn(name, eval_episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
     final = eval_fn(policy, ppo.total_steps)
     policy.save(
@@ -381,7 +394,7 @@ def build_bank(
     if run.is_done() and out.exists():
         return out
     run.start()
-    env = make_batched(name, EVAL_NUM_ENVS)
+    env = _eval_env(name, episodes)
     bank = build_source_bank(
         env,
         load_policy(path),
@@ -478,7 +491,7 @@ def transfer(
         bank = load_bank(shaping_inputs[1])
         shaping = LatentShaping(model, bank, beta, env.robot_state_indices)
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
-    eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed)
+    eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
     policy_file = run.path / "policy.pt"
     policy.save(
@@ -492,7 +505,11 @@ def transfer(
         },
     )
     final = evaluate_policy(
-        policy, make_batched(name, EVAL_NUM_ENVS), episodes=final_episodes, seed=2 * 10**6 + seed
+        policy,
+        _eval_env(name, final_episodes),
+        episodes=final_episodes,
+        seed=2 * 10**6 + seed,
+        info_keys=preset.eval_info_keys,
     )
     return run.finish(
         {
@@ -513,13 +530,15 @@ def evaluate(
     seed: int = 0,
     reward: str | None = None,
 ) -> dict[str, float]:
-    """Evaluate a saved policy (``pved evaluate``): success rate, return, length."""
+    """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
+    pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
     policy = load_policy(Path(policy_path))
-    env = make_batched(env_name, EVAL_NUM_ENVS, **({"reward": reward} if reward else {}))
+    env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
     _check_policy(
         policy, env_name, env.single_observation_space.shape[0], env.single_action_space.shape[0]
     )
-    return evaluate_policy(policy, env, episodes=episodes, seed=seed)
+    info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
+    return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
 
 
 def preset_summary(preset: PairPreset) -> dict[str, Any]:

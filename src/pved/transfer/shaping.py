@@ -35,6 +35,8 @@ def task_params(info: dict[str, Any], keys: tuple[str, ...], n: int) -> np.ndarr
     missing = [k for k in keys if k not in info]
     if missing:
         raise PvedError(f"env info lacks the task parameters {missing} the source bank matches on")
+    if not keys:
+        return np.zeros((n, 0))
     return np.concatenate([np.asarray(info[k], dtype=np.float64).reshape(n, -1) for k in keys], 1)
 
 
@@ -100,14 +102,19 @@ class ShapedBatchedEnv(BatchedEnv):
         self._obs = np.zeros((self.num_envs, *env.single_observation_space.shape))
         self._t = np.zeros(self.num_envs, dtype=np.int64)
         self._episode = np.zeros(self.num_envs, dtype=np.int64)
+        self._rng: np.random.Generator | None = None
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, Info]:
         obs, info = self.env.reset(seed=seed, options=options)
+        if seed is not None or self._rng is None:
+            # draws bank episodes when the task has no parameters to match on
+            self._rng = np.random.default_rng(seed)
         self._obs = obs
         self._t[:] = 0
-        self._episode = self.shaping.bank.match(task_params(info, self.match_keys, self.num_envs))
+        params = task_params(info, self.match_keys, self.num_envs)
+        self._episode = self.shaping.bank.match(params, self._rng)
         return obs, info
 
     def step(
@@ -124,7 +131,7 @@ class ShapedBatchedEnv(BatchedEnv):
         if done.any():
             self._t[done] = 0
             params = task_params(info, self.match_keys, self.num_envs)
-            self._episode[done] = self.shaping.bank.match(params[done])
+            self._episode[done] = self.shaping.bank.match(params[done], self._rng)
         self._obs = obs
         return obs, env_reward + shaping, terminated, truncated, info
 
@@ -154,14 +161,18 @@ class LatentShapingWrapper(
         self._obs: np.ndarray = np.zeros(env.observation_space.shape or ())
         self._t = 0
         self._episode = 0
+        self._rng: np.random.Generator | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
+        if seed is not None or self._rng is None:
+            self._rng = np.random.default_rng(seed)
         self._obs = np.asarray(obs)
         self._t = 0
-        self._episode = int(self.shaping.bank.match(task_params(info, self.match_keys, 1))[0])
+        params = task_params(info, self.match_keys, 1)
+        self._episode = int(self.shaping.bank.match(params, self._rng)[0])
         return obs, info
 
     def step(

@@ -50,14 +50,23 @@ class SourceBank:
     def dim(self) -> int:
         return int(self.x.shape[2])
 
-    def match(self, task_params: np.ndarray) -> np.ndarray:
-        """Index (N,) of the bank episode nearest to each row of ``task_params`` (N, K)."""
+    def match(self, task_params: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Index (N,) of the bank episode nearest to each row of ``task_params`` (N, K).
+
+        A task without parameters (K = 0, e.g. the fixed Curve terrain) has no nearest
+        episode: each target episode then gets a bank episode drawn uniformly with ``rng``,
+        so the shaping sees the source's whole spread of behaviour, not one episode.
+        """
         params = np.asarray(task_params, dtype=np.float64).reshape(len(task_params), -1)
         if params.shape[1] != self.keys.shape[1]:
             raise PvedError(
                 f"task parameters have {params.shape[1]} entries, "
                 f"the bank matches on {self.keys.shape[1]}"
             )
+        if params.shape[1] == 0:
+            if rng is None:
+                raise PvedError("a bank without match keys needs an rng to draw episodes")
+            return np.asarray(rng.integers(0, len(self.keys), size=len(params)), dtype=np.int64)
         dist = ((params[:, None, :] - self.keys[None, :, :]) ** 2).sum(-1)
         return np.asarray(dist.argmin(1), dtype=np.int64)
 
@@ -92,9 +101,10 @@ def build_source_bank(
         rows = np.concatenate([e.obs[:, idx], e.act], 1)
         x[i, : len(rows)] = rows
         x[i, len(rows) :] = rows[-1]
-    keys = np.stack(
-        [np.concatenate([np.ravel(e.reset_info[k]) for k in match_keys]) for e in eps]
-    ).astype(np.float64)
+    keys = np.array(
+        [[v for k in match_keys for v in np.ravel(e.reset_info[k])] for e in eps],
+        dtype=np.float64,
+    ).reshape(len(eps), -1)
     full_header = {
         **(header or {}),
         "match_keys": list(match_keys),
