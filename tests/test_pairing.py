@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pved.errors import PvedError
-from pved.pairing.align import align, dtw_indices, subsample_indices
+from pved.pairing.align import align, dtw_indices, subsample_indices, time_indices
 from pved.pairing.dataset import PairedDataset, load_dataset, save_dataset
 
 
@@ -24,6 +24,26 @@ def test_subsample_keeps_shorter_and_spreads_longer() -> None:
         align("warp", 3, 3)
     with pytest.raises(PvedError, match="needs a learned shared space"):
         align("dtw", 3, 3)
+
+
+def test_time_alignment_pairs_steps_at_the_same_moment() -> None:
+    # Humanoid acts every 0.015 s, Ant every 0.05 s: 1000 Humanoid steps last 15 s, so
+    # the first 300 Ant steps are paired, each with the Humanoid step nearest in time
+    i_s, i_t = time_indices(1000, 1000, 0.015, 0.05)
+    assert i_t.tolist() == list(range(300))
+    assert np.all(np.abs(i_s * 0.015 - i_t * 0.05) <= 0.0075 + 1e-12)
+    assert i_s[:4].tolist() == [0, 3, 7, 10]
+    # the source is the coarse agent: the roles swap; a fallen (short) episode bounds it
+    i_s, i_t = time_indices(100, 1000, 0.05, 0.015)
+    assert i_s.tolist() == list(range(100)) and i_t[-1] == 330
+    i_s, i_t = time_indices(1000, 20, 0.015, 0.05)  # the Ant fell after 1 s
+    assert i_t.tolist() == list(range(20)) and i_s[-1] == 63
+    # equal periods: the identity on the common length
+    i_s, i_t = time_indices(7, 5, 0.02, 0.02)
+    assert i_s.tolist() == i_t.tolist() == [0, 1, 2, 3, 4]
+    assert align("time", 10, 10, 0.015, 0.05)[1].tolist() == [0, 1, 2]
+    with pytest.raises(PvedError, match="control periods"):
+        align("time", 10, 10)
 
 
 def test_dtw_pairs_a_stretched_episode_with_its_original() -> None:

@@ -240,6 +240,10 @@ def test_locomotion_pair_runs_through_the_pipeline_at_a_smoke_budget(
     # both agents of every paired episode climbed the same slope, drawn in [2, 10] degrees
     slopes = data.task["slope_deg"]
     assert slopes.shape[0] == 16 and np.all((slopes >= 2.0) & (slopes <= 10.0))
+    if pair == "humanoid-ant":  # paired by physical time: 0.015 s vs 0.05 s steps
+        assert data.header["alignment"] == "time"
+        gap = np.abs(data.t_source * data.header["dt_source"] - data.t_target * 0.05)
+        assert data.header["dt_target"] == pytest.approx(0.05) and gap.max() <= 0.0075 + 1e-9
     assert main(["train-model", "--runs", str(runs), "--pair", pair, "--epochs", "1"]) == 0
     code, _, err = run_cli(capsys, "build-bank", "--runs", runs, "--pair", pair,
                            "--source-policy", src_curve, "--episodes", "16")  # fmt: skip

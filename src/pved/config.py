@@ -119,6 +119,7 @@ def _locomotion_preset(
     alphas: tuple[float, float, float],
     beta: float,
     policy_steps: tuple[tuple[str, str, int], ...],
+    align: str = "subsample",
 ) -> PairPreset:
     ppo = PPOConfig()
     return PairPreset(
@@ -134,6 +135,7 @@ def _locomotion_preset(
         transfer=TransferConfig(beta=beta, final_eval_episodes=100, ppo=ppo),
         # Both agents of a paired episode climb the same slope (paper IV.A).
         shared_task_keys=("slope_deg",),
+        pairing=PairingConfig(align=align),
         # Curve has no task parameter: bank episodes are drawn at random per episode.
         bank_match_keys=(),
         metric="x_position_mean",
@@ -173,6 +175,9 @@ PRESETS: dict[str, PairPreset] = {
             ("Ant", "Slope", 5_000_000),
             ("Humanoid", "Curve", 20_000_000),
         ),
+        # Humanoid acts every 0.015 s, Ant every 0.05 s: pair the steps taken at the same
+        # moment of the climb (docs/decisions.md).
+        align="time",
     ),
 }
 

@@ -30,7 +30,8 @@ from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import train_model as fit_model
-from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, align, dtw_indices
+from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, dtw_indices
+from pved.pairing.align import align as align_steps
 from pved.pairing.collect import (
     EpisodePair,
     collect_episode_pairs,
@@ -203,8 +204,13 @@ def collect_pairs(
         "deterministic_actions": cfg.deterministic,
         "seed": seed,
     }
+    # control periods, for alignment by physical time (None for envs without one)
+    dt_s, dt_t = getattr(src_env, "dt", None), getattr(tgt_env, "dt", None)
+    header.update(dt_source=dt_s, dt_target=dt_t)
     time_only = "subsample" if align in LEARNED_ALIGNMENTS else align
-    alignment = [_time_alignment(time_only, e_s, e_t) for e_s, e_t in pairs]
+    alignment = [
+        align_steps(time_only, len(e_s.obs), len(e_t.obs), dt_s, dt_t) for e_s, e_t in pairs
+    ]
     if align == "dtw":
         alignment, rounds = _dtw_rounds(preset, pairs, alignment, header, seed, progress)
         header["dtw"] = rounds
@@ -228,10 +234,6 @@ def collect_pairs(
         }
     )
     return out
-
-
-def _time_alignment(method: str, e_s: Any, e_t: Any) -> tuple[np.ndarray, np.ndarray]:
-    return align(method, len(e_s.obs), len(e_t.obs))
 
 
 def _model_rows(pairs: list[EpisodePair], header: dict[str, Any]) -> list[np.ndarray]:

@@ -2,6 +2,8 @@
 
 - ``subsample`` (paper IV.A: "we align the trajectories between the two agents by
   subsampling the longer trajectories along the timesteps"): by time alone.
+- ``time``: by physical time, for agents whose control periods differ (Humanoid 0.015 s,
+  Ant 0.05 s): the step of each agent at the same moment of the episode.
 - ``dtw``: dynamic time warping of the two episodes' embeddings in a learned shared
   space, as Gupta et al. (2017) align their agents; :func:`dtw_indices` aligns one pair
   given the embeddings, and ``pved.experiments.stages.collect_pairs`` runs the rounds
@@ -14,7 +16,7 @@ import numpy as np
 
 from pved.errors import PvedError
 
-ALIGNMENTS = ("subsample", "dtw")
+ALIGNMENTS = ("subsample", "time", "dtw")
 #: Alignments that need a learned shared space (run by the collect-pairs stage).
 LEARNED_ALIGNMENTS = ("dtw",)
 
@@ -38,6 +40,40 @@ def subsample_indices(length_source: int, length_target: int) -> tuple[np.ndarra
         return np.rint(np.linspace(0, length - 1, n)).astype(np.int64)
 
     return spread(length_source), spread(length_target)
+
+
+def time_indices(
+    length_source: int, length_target: int, dt_source: float, dt_target: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices pairing the steps of two episodes taken at the same physical time.
+
+    Step k of an agent with control period dt happens at t = k·dt. The agent with the
+    longer period keeps each of its steps up to the end of the shorter episode (in
+    seconds), and is paired with the other agent's step nearest in time; so both sides
+    cover the same stretch of the climb, and the finer agent is subsampled.
+
+    Returns:
+        (idx_source, idx_target), each (P,) int64, non-decreasing.
+    """
+    if length_source < 1 or length_target < 1:
+        raise PvedError(f"cannot align empty episodes ({length_source}, {length_target})")
+    if not (dt_source > 0 and dt_target > 0):
+        raise PvedError(f"control periods must be positive, got {dt_source}, {dt_target}")
+    duration = min(length_source * dt_source, length_target * dt_target)
+
+    def pair(
+        dt_coarse: float, len_coarse: int, dt_fine: float, len_fine: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        # the coarse agent's steps that start within both episodes (step 0 always does)
+        coarse = np.arange(len_coarse, dtype=np.int64)
+        coarse = coarse[coarse * dt_coarse < duration * (1.0 - 1e-9)]
+        fine = np.rint(coarse * dt_coarse / dt_fine).astype(np.int64)
+        return coarse, np.minimum(fine, len_fine - 1)
+
+    if dt_source >= dt_target:
+        return pair(dt_source, length_source, dt_target, length_target)
+    i_t, i_s = pair(dt_target, length_target, dt_source, length_source)
+    return i_s, i_t
 
 
 def dtw_indices(
@@ -70,11 +106,21 @@ def dtw_indices(
     return path[:, 0].copy(), path[:, 1].copy()
 
 
-def align(method: str, length_source: int, length_target: int) -> tuple[np.ndarray, np.ndarray]:
-    """Dispatch on a time-only alignment ``method``; an unknown one raises
-    :class:`PvedError`, a learned one (``dtw``) says where it is run."""
+def align(
+    method: str,
+    length_source: int,
+    length_target: int,
+    dt_source: float | None = None,
+    dt_target: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dispatch on a time-only alignment ``method`` (``time`` needs both control periods);
+    an unknown one raises :class:`PvedError`, a learned one (``dtw``) says where it runs."""
     if method == "subsample":
         return subsample_indices(length_source, length_target)
+    if method == "time":
+        if dt_source is None or dt_target is None:
+            raise PvedError("alignment 'time' needs both agents' control periods")
+        return time_indices(length_source, length_target, dt_source, dt_target)
     if method in LEARNED_ALIGNMENTS:
         raise PvedError(f"alignment {method!r} needs a learned shared space; use the stage")
     raise PvedError(f"unknown alignment {method!r}; known: {', '.join(ALIGNMENTS)}")
