@@ -68,11 +68,26 @@ def _locomotion(agent: str, task: str) -> EnvEntry:
     )
 
 
+def _arm(agent: str, task: str) -> EnvEntry:
+    return EnvEntry(
+        agent=agent,
+        task=task,
+        gym_entry_point=f"pved.envs.arms:Arm{task}Env",
+        batched_entry_point=f"pved.envs.arms:Arm{task}Batched",
+        kwargs={"agent": agent},
+    )
+
+
 _ENTRIES: tuple[EnvEntry, ...] = (
     _reacher("Reacher3", "Reach"),
     _reacher("Reacher4", "Reach"),
     _reacher("Reacher3", "Push"),
     _reacher("Reacher4", "Push"),
+    # Robot-arm pair (source, target): Jaco -> Fetch4.
+    _arm("Jaco", "Reach"),
+    _arm("Fetch4", "Reach"),
+    _arm("Jaco", "Peg"),
+    _arm("Fetch4", "Peg"),
     # Locomotion pairs (source, target): Walker2d -> Hopper, Humanoid -> Ant.
     _locomotion("Walker2d", "Slope"),
     _locomotion("Hopper", "Slope"),
