@@ -214,11 +214,22 @@ def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -
 
 
 @pytest.mark.parametrize(
-    ("pair", "source", "target"),
-    [("walker-hopper", "Walker2d", "Hopper"), ("humanoid-ant", "Humanoid", "Ant")],
+    ("pair", "source", "target", "training", "target_task", "metric"),
+    [
+        ("walker-hopper", "Walker2d", "Hopper", "Slope", "Curve", "x_position_mean"),
+        ("humanoid-ant", "Humanoid", "Ant", "Slope", "Curve", "x_position_mean"),
+        ("jaco-fetch", "Jaco", "Fetch4", "Reach", "Peg", "success_rate"),
+    ],
 )
-def test_locomotion_pair_runs_through_the_pipeline_at_a_smoke_budget(
-    pair: str, source: str, target: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_pair_runs_through_the_pipeline_at_a_smoke_budget(
+    pair: str,
+    source: str,
+    target: str,
+    training: str,
+    target_task: str,
+    metric: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     runs = tmp_path / "runs"
 
@@ -230,16 +241,17 @@ def test_locomotion_pair_runs_through_the_pipeline_at_a_smoke_budget(
         return Path(out.strip().splitlines()[-1])
 
     src_slope, tgt_slope, src_curve = (
-        policy(source, "Slope"), policy(target, "Slope"), policy(source, "Curve")
+        policy(source, training), policy(target, training), policy(source, target_task)
     )  # fmt: skip
     code, out, err = run_cli(capsys, "collect-pairs", "--runs", runs, "--pair", pair,
                              "--source-policy", src_slope, "--target-policy", tgt_slope,
                              "--episodes", "16")  # fmt: skip
     assert code == 0, err
     data = load_dataset(Path(out.strip()))
-    # both agents of every paired episode climbed the same slope, drawn in [2, 10] degrees
-    slopes = data.task["slope_deg"]
-    assert slopes.shape[0] == 16 and np.all((slopes >= 2.0) & (slopes <= 10.0))
+    assert len(np.unique(data.episode)) == 16
+    if training == "Slope":  # both agents of a paired episode climbed one slope in [2, 10]°
+        slopes = data.task["slope_deg"]
+        assert slopes.shape[0] == 16 and np.all((slopes >= 2.0) & (slopes <= 10.0))
     if pair == "humanoid-ant":  # paired by physical time: 0.015 s vs 0.05 s steps
         assert data.header["alignment"] == "time"
         gap = np.abs(data.t_source * data.header["dt_source"] - data.t_target * 0.05)
@@ -253,8 +265,8 @@ def test_locomotion_pair_runs_through_the_pipeline_at_a_smoke_budget(
                                  method, "--steps", "2048", "--eval-every", "2048",
                                  "--eval-episodes", "2", "--final-eval-episodes", "2")  # fmt: skip
         assert code == 0, err
-        assert "final/x_position_mean" in json.loads(out)
+        assert f"final/{metric}" in json.loads(out)
     code, _, err = run_cli(capsys, "report", "--runs", runs, "--pair", pair, "--seeds",
                            "20000", "--out", tmp_path / "report")  # fmt: skip
     assert code == 0, err
-    assert "x_position_mean" in (tmp_path / "report/results.md").read_text()
+    assert metric in (tmp_path / "report/results.md").read_text()

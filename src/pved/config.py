@@ -112,6 +112,26 @@ def _reacher_preset() -> PairPreset:
     )
 
 
+def _arm_preset() -> PairPreset:
+    ppo = PPOConfig()
+    return PairPreset(
+        name="jaco-fetch",
+        source_agent="Jaco",
+        target_agent="Fetch4",
+        training_task="Reach",
+        target_task="Peg",
+        # Table 1, Jaco3-Fetch: alpha1 = 1, alpha2 = 1, alpha3 = 10, beta = 0.01.
+        model=dataclasses.replace(PVEDConfig(), alpha1=1.0, alpha2=1.0, alpha3=10.0),
+        transfer=TransferConfig(beta=0.01, ppo=ppo),
+        # the same random reach target for both robots; target episodes are matched to
+        # the bank episode whose hole is nearest
+        shared_task_keys=("target",),
+        bank_match_keys=("hole",),
+        policy=ppo,
+        policy_overrides=(("Jaco", "Peg", dataclasses.replace(ppo, total_steps=2_000_000)),),
+    )
+
+
 def _locomotion_preset(
     name: str,
     source: str,
@@ -150,6 +170,7 @@ def _locomotion_preset(
 
 PRESETS: dict[str, PairPreset] = {
     "reacher": _reacher_preset(),
+    "jaco-fetch": _arm_preset(),
     # Table 1, Walker2d-Hopper: alpha = 1, 1, 10; beta = 0.02.
     "walker-hopper": _locomotion_preset(
         "walker-hopper",
