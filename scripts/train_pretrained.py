@@ -5,7 +5,7 @@ result on 500 fresh episodes, and copies the policy file into the package beside
 ``.json`` saying how it was made and how well it does:
 
     .venv/bin/python scripts/train_pretrained.py                    # the Reacher pair's three
-    .venv/bin/python scripts/train_pretrained.py --only Reacher3:Push --steps 500000
+    .venv/bin/python scripts/train_pretrained.py --only Jaco:Reach Fetch4:Reach
 
 The equivalent commands by hand (then ``pved evaluate`` and a copy) are
 ``pved train-policy --agent Reacher3 --task Reach --seed 0`` and so on.
@@ -26,6 +26,7 @@ from pathlib import Path  # noqa: E402
 import torch  # noqa: E402
 
 from pved import __version__  # noqa: E402
+from pved.config import preset_for_agent  # noqa: E402
 from pved.envs.registry import env_id  # noqa: E402
 from pved.experiments.stages import evaluate, file_digest, train_policy  # noqa: E402
 from pved.pretrained import PRETRAINED_DIR  # noqa: E402
@@ -67,14 +68,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=Path("runs/pretrained"))
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--only", nargs="*", help="Agent:Task entries (default: all three)")
+    parser.add_argument(
+        "--only",
+        nargs="*",
+        help="Agent:Task entries, e.g. Jaco:Reach (default: the Reacher pair's three); "
+        "steps are the pair preset's unless --steps is given",
+    )
     parser.add_argument("--steps", type=int, help="override every entry's env steps")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    wanted = set(args.only or [])
-    for agent, task, steps in DEFAULT_POLICIES:
-        if wanted and f"{agent}:{task}" not in wanted:
-            continue
+    entries = DEFAULT_POLICIES
+    if args.only:
+        entries = tuple(
+            (agent, task, preset_for_agent(agent).policy_config(agent, task).total_steps)
+            for agent, task in (entry.split(":") for entry in args.only)
+        )
+    for agent, task, steps in entries:
         meta = ship(agent, task, args.seed, args.steps or steps, args.runs)
         print(json.dumps(meta["evaluation"]), flush=True)
 
