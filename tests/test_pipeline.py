@@ -270,3 +270,27 @@ def test_pair_runs_through_the_pipeline_at_a_smoke_budget(
                            "20000", "--out", tmp_path / "report")  # fmt: skip
     assert code == 0, err
     assert metric in (tmp_path / "report/results.md").read_text()
+
+
+def test_analysis_verbs(pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    model = pipeline / "reacher/model/pved/seed0"
+    target = pipeline / "reacher/transfer/pved/seed20000"
+    code, out, err = run_cli(capsys, "tsne", "--model", model, "--target-policy", target,
+                             "--episodes", "1", "--marks", "2",
+                             "--out", tmp_path / "tsne")  # fmt: skip
+    assert code == 0, err
+    numbers = json.loads((tmp_path / "tsne/numbers.json").read_text())
+    assert 0.0 <= numbers["shared"]["agent_probe_accuracy"] <= 1.0
+    for name in ("tsne_shared.png", "tsne_individual.png", "mark_1.png", "mark_2.png"):
+        assert (tmp_path / "tsne" / name).stat().st_size > 0
+    code, out, err = run_cli(capsys, "bound", "--model", model, "--target-policy", target,
+                             "--episodes", "1")  # fmt: skip
+    assert code == 0, err
+    assert out.startswith("Theorem 1:") and ("(held)" in out or "(VIOLATED)" in out)
+    code, out, err = run_cli(capsys, "video", "--policy", target, "--env", "pved/Reacher4Push-v0",
+                             "--max-steps", "5", "--out", tmp_path / "v.gif")  # fmt: skip
+    assert code == 0, err
+    assert (tmp_path / "v.gif").stat().st_size > 0
+    code, _, err = run_cli(capsys, "video", "--policy", target, "--env", "pved/Reacher4Push-v0",
+                           "--with-policy", target, "--out", tmp_path / "w.gif")  # fmt: skip
+    assert code == 2 and "--with-policy needs --with-env" in err

@@ -64,3 +64,19 @@ def test_corrupt_checkpoint_is_a_one_line_error(tmp_path: Path) -> None:
         safe_torch_load(bad)
     with pytest.raises(PvedError, match="not found"):
         safe_torch_load(tmp_path / "missing.pt")
+
+
+def test_atomic_writes_are_readable_by_others(tmp_path: Path) -> None:
+    import os
+    import stat
+
+    from pved.runs import atomic_torch_save, atomic_write_bytes
+
+    old = os.umask(0o022)
+    try:
+        atomic_write_bytes(tmp_path / "a.json", b"{}")
+        atomic_torch_save(tmp_path / "b.pt", {"x": 1})
+    finally:
+        os.umask(old)
+    for name in ("a.json", "b.pt"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644

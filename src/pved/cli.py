@@ -157,6 +157,60 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print(f"report: {out.resolve()}")
 
 
+def _cmd_tsne(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import analyze_subspaces
+
+    result = analyze_subspaces(
+        args.pair,
+        args.model,
+        args.target_policy,
+        args.out,
+        source_policy=args.source_policy,
+        episodes=args.episodes,
+        marks=args.marks,
+        seed=args.seed,
+    )
+    _print_json(result["numbers"])
+    print(f"figures: {Path(args.out).resolve()}")
+
+
+def _cmd_bound(args: argparse.Namespace) -> None:
+    from pved.experiments.stages import bound
+
+    result = bound(
+        args.pair,
+        args.model,
+        args.target_policy,
+        source_policy=args.source_policy,
+        episodes=args.episodes,
+        quantile=args.quantile,
+        gamma=args.gamma,
+        seed=args.seed,
+    )
+    print(result["summary"])
+
+
+def _cmd_video(args: argparse.Namespace) -> None:
+    from pved.analysis.video import render_rollout
+    from pved.errors import PvedError
+    from pved.experiments.stages import run_file
+
+    other = None
+    if args.with_policy is not None:
+        if args.with_env is None:
+            raise PvedError("--with-policy needs --with-env")
+        other = (run_file(args.with_policy, "policy.pt"), args.with_env)
+    path = render_rollout(
+        run_file(args.policy, "policy.pt"),
+        args.env,
+        args.out,
+        seed=args.seed,
+        max_steps=args.max_steps,
+        side_by_side_with=other,
+    )
+    print(path)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``pved`` argument parser (sub-commands)."""
     parser = argparse.ArgumentParser(prog="pved", description=__doc__.splitlines()[0])
@@ -243,6 +297,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", nargs="+", type=int, required=True)
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=_cmd_report)
+
+    p = sub.add_parser(
+        "tsne", help="t-SNE of the shared and individual subspaces along rollouts (Figs. 4-7)"
+    )
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
+    p.add_argument(
+        "--target-policy",
+        type=Path,
+        required=True,
+        help="the transferred target's policy.pt or its transfer run directory",
+    )
+    p.add_argument("--source-policy", type=Path, help="default: the shipped target-task one")
+    p.add_argument("--episodes", type=int, default=6)
+    p.add_argument("--marks", type=int, default=4, help="marked positions with their frames")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, required=True)
+    p.set_defaults(func=_cmd_tsne)
+
+    p = sub.add_parser("bound", help="Theorem 1 / Corollary 1 against the measured gap")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
+    p.add_argument("--target-policy", type=Path, required=True)
+    p.add_argument("--source-policy", type=Path, help="default: the shipped target-task one")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--quantile", type=float, default=0.95, help="quantile of the KL taken as δ")
+    p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_bound)
+
+    p = sub.add_parser("video", help="render a rollout of a policy to GIF (or MP4)")
+    p.add_argument("--policy", type=Path, required=True, help="policy.pt or its run directory")
+    p.add_argument("--env", required=True)
+    p.add_argument("--with-policy", type=Path, help="a second policy shown beside the first")
+    p.add_argument("--with-env", help="the second policy's env id")
+    p.add_argument("--max-steps", type=int)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, required=True)
+    p.set_defaults(func=_cmd_video)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))

@@ -28,6 +28,7 @@ from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import env_id, get_entry
 from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
+from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, dtw_indices
@@ -43,7 +44,7 @@ from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import train_ppo
-from pved.runs import Run, run_path
+from pved.runs import Run, atomic_write_json, run_path
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
@@ -565,3 +566,97 @@ __all__ = [
     "train_policy",
     "transfer",
 ]
+
+
+# ---------------------------------------------------------------------------- analysis
+def run_file(path: Path | str, name: str) -> Path:
+    """``path`` itself, or ``path/name`` when ``path`` is a run directory."""
+    path = Path(path)
+    return path / name if path.is_dir() else path
+
+
+def _analysis_inputs(
+    pair: str, model_path: Path | str, target_policy: Path | str, source_policy: Path | str | None
+) -> tuple[PairPreset, SharedSpaceModel, Policy, Policy, str, str]:
+    preset = get_preset(pair)
+    model = load_model(run_file(model_path, "model.pt"))
+    if model.metadata.get("target_agent") not in (None, preset.target_agent):
+        raise PvedError(f"model {model_path} was trained for another pair than {pair!r}")
+    src = load_policy(
+        pretrained_policy_path(preset.source_agent, preset.target_task)
+        if source_policy is None
+        else run_file(source_policy, "policy.pt")
+    )
+    tgt = load_policy(run_file(target_policy, "policy.pt"))
+    return (
+        preset,
+        model,
+        src,
+        tgt,
+        env_id(preset.source_agent, preset.target_task),
+        env_id(preset.target_agent, preset.target_task),
+    )
+
+
+def analyze_subspaces(
+    pair: str,
+    model_path: Path | str,
+    target_policy: Path | str,
+    out: Path | str,
+    *,
+    source_policy: Path | str | None = None,
+    episodes: int = 6,
+    marks: int = 4,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """``pved tsne``: t-SNE of both agents' shared and individual posterior means along
+    target-task rollouts (paper IV.C, Figs. 4–7), frames nearest to marks, and the numbers
+    beside them (time correspondence, agent-identity probes) in ``out/numbers.json``."""
+    from pved.analysis.tsne import embed_rollouts, plot_tsne, subspace_numbers
+
+    torch.set_num_threads(1)
+    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
+        pair, model_path, target_policy, source_policy
+    )
+    data = embed_rollouts(
+        model, src, tgt, src_id, tgt_id, episodes, seed, match_keys=preset.bank_match_keys
+    )
+    out = Path(out)
+    figures = plot_tsne(data, out, marks=marks, seed=seed)
+    numbers = subspace_numbers(data, seed=seed)
+    atomic_write_json(out / "numbers.json", numbers)
+    return {"figures": [str(p) for p in figures], "numbers": numbers}
+
+
+def bound(
+    pair: str,
+    model_path: Path | str,
+    target_policy: Path | str,
+    *,
+    source_policy: Path | str | None = None,
+    episodes: int = 10,
+    quantile: float = 0.95,
+    gamma: float = 0.99,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """``pved bound``: Theorem 1 and Corollary 1 (paper III.E) estimated on rollouts of the
+    source and the transferred target, beside the measured gaps."""
+    from pved.analysis.bound import theorem1_bound
+
+    torch.set_num_threads(1)
+    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
+        pair, model_path, target_policy, source_policy
+    )
+    result = theorem1_bound(
+        model,
+        src,
+        tgt,
+        src_id,
+        tgt_id,
+        episodes,
+        seed,
+        quantile=quantile,
+        gamma=gamma,
+        match_keys=preset.bank_match_keys,
+    )
+    return {"summary": result.summary(), **result.as_dict()}

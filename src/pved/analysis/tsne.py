@@ -1,0 +1,597 @@
+"""t-SNE analysis of the learned shared and individual subspaces (paper IV.C, Figs. 4–7).
+
+The paper runs the source and the transferred target policy on the target task, embeds
+each step's shared factor c and individual factor u of both agents with t-SNE, colours the
+points by normalised time (one colour map per agent), and shows the source and target
+frames nearest to a few marks spread over the shared embedding. Beside the pictures this
+module reports two numbers that make the visual claims checkable:
+
+* cross-agent time correspondence: for each target step, the normalised time of its
+  nearest source step in a subspace; a small mean |Δt| in the shared subspace means the
+  shared factor aligns the two agents' task stages ("smooth patterns along the
+  timesteps", IV.C);
+* a linear probe of agent identity: held-out balanced accuracy of a logistic regression.
+  The individual subspace should separate the agents (≈1), the shared one should not
+  (≈0.5), which is the paper's "distinct and well separated" vs "overlap" reading.
+
+The rollout helpers here (one Gymnasium-form episode per seed, the target reset with the
+source's task parameters) are also used by :mod:`pved.analysis.bound` and
+:mod:`pved.analysis.video`.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pved.envs.registry import make
+from pved.errors import PvedError
+from pved.models.base import SharedSpaceModel
+from pved.rl.policy import Policy
+from pved.runs import atomic_write_bytes, atomic_write_json
+
+SOURCE, TARGET = 0, 1
+AGENT_NAMES = ("source", "target")
+
+
+# ------------------------------------------------------------------------- rollouts
+@dataclass
+class EpisodeRecord:
+    """One Gymnasium-form episode, kept with what re-simulating it needs.
+
+    ``obs[t]`` is the observation ``act[t]`` was taken in and ``reward[t]`` the reward of
+    that step; replaying ``act`` after ``reset(seed=seed, options=options)`` reproduces
+    the episode exactly (the simulation is deterministic given the seed).
+    """
+
+    obs: np.ndarray  # (T, obs_dim)
+    act: np.ndarray  # (T, act_dim)
+    reward: np.ndarray  # (T,)
+    seed: int
+    options: dict[str, np.ndarray] | None
+    reset_info: dict[str, Any]
+    success: bool
+
+    @property
+    def length(self) -> int:
+        return int(self.act.shape[0])
+
+
+def make_env(
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    *,
+    render: bool = False,
+    width: int = 240,
+    height: int = 240,
+) -> Any:
+    """The Gymnasium form of ``env_id``; with ``render`` an offscreen ``rgb_array`` env of
+    the given image size (envs without size arguments fall back to their default)."""
+    kwargs = dict(env_kwargs or {})
+    if not render:
+        return make(env_id, **kwargs)
+    try:
+        return make(env_id, render_mode="rgb_array", width=width, height=height, **kwargs)
+    except TypeError:  # an env whose constructor has no width/height
+        return make(env_id, render_mode="rgb_array", **kwargs)
+
+
+def _check_policy(policy: Policy, env: Any, name: str) -> None:
+    obs_dim = env.observation_space.shape[0]
+    act_dim = env.action_space.shape[0]
+    if policy.obs_dim != obs_dim or policy.act_dim != act_dim:
+        raise PvedError(
+            f"{name} policy dims (obs {policy.obs_dim}, act {policy.act_dim}) do not match "
+            f"its env (obs {obs_dim}, act {act_dim})"
+        )
+
+
+def run_episode(
+    env: Any,
+    policy: Policy,
+    seed: int,
+    options: Mapping[str, Any] | None = None,
+    *,
+    max_steps: int | None = None,
+    deterministic: bool = True,
+    frames: list[np.ndarray] | None = None,
+) -> EpisodeRecord:
+    """Run one episode of ``policy`` in the Gymnasium-form ``env`` (reset with ``seed`` and
+    ``options``) until it terminates, truncates or reaches ``max_steps`` steps.
+
+    With ``frames`` given (env in ``rgb_array`` mode), the initial frame and one frame
+    after every step are appended to it.
+    """
+    opts = {k: np.asarray(v, dtype=np.float64) for k, v in options.items()} if options else None
+    obs, info = env.reset(seed=int(seed), options=opts)
+    rng = np.random.default_rng(seed)  # exploration noise when not deterministic
+    if frames is not None:
+        frames.append(np.asarray(env.render()))
+    obs_log: list[np.ndarray] = []
+    act_log: list[np.ndarray] = []
+    rew_log: list[float] = []
+    success = False
+    limit = np.inf if max_steps is None else int(max_steps)
+    while len(act_log) < limit:
+        action = policy.act(np.asarray(obs, dtype=np.float64)[None], deterministic, rng)[0]
+        obs_log.append(np.asarray(obs, dtype=np.float64).copy())
+        act_log.append(np.asarray(action, dtype=np.float64))
+        obs, reward, terminated, truncated, step_info = env.step(action)
+        rew_log.append(float(reward))
+        success = bool(step_info.get("is_success", success))
+        if frames is not None:
+            frames.append(np.asarray(env.render()))
+        if terminated or truncated:
+            break
+    if not act_log:
+        raise PvedError("an episode needs at least one step (max_steps >= 1)")
+    return EpisodeRecord(
+        obs=np.stack(obs_log),
+        act=np.stack(act_log),
+        reward=np.asarray(rew_log),
+        seed=int(seed),
+        options=opts,
+        reset_info={k: np.asarray(v) for k, v in info.items()},
+        success=success,
+    )
+
+
+def shared_task_options(
+    reset_info: Mapping[str, Any], match_keys: Sequence[str]
+) -> dict[str, np.ndarray] | None:
+    """The source episode's task parameters ``match_keys`` as target reset options, so
+    both agents solve the same task instance (as in pairing and the source bank)."""
+    if not match_keys:
+        return None
+    missing = [k for k in match_keys if k not in reset_info]
+    if missing:
+        raise PvedError(f"source reset info has no task parameter(s) {', '.join(missing)}")
+    return {k: np.asarray(reset_info[k], dtype=np.float64) for k in match_keys}
+
+
+def run_paired_episodes(
+    source_policy: Policy,
+    target_policy: Policy,
+    source_env_id: str,
+    target_env_id: str,
+    episodes: int,
+    seed: int,
+    *,
+    match_keys: Sequence[str] = (),
+    source_env_kwargs: Mapping[str, Any] | None = None,
+    target_env_kwargs: Mapping[str, Any] | None = None,
+    max_steps: int | None = None,
+    deterministic: bool = True,
+) -> tuple[list[EpisodeRecord], list[EpisodeRecord], np.ndarray, np.ndarray]:
+    """Episode ``e`` of both agents uses seed ``seed + e``; the target is reset with the
+    source's ``match_keys`` task parameters.
+
+    Returns:
+        source episodes, target episodes, and the robot-state indices of the source and
+        target observations (from the envs).
+    """
+    if episodes < 1:
+        raise PvedError(f"episodes must be >= 1, got {episodes}")
+    env_s = make_env(source_env_id, source_env_kwargs)
+    env_t = make_env(target_env_id, target_env_kwargs)
+    try:
+        _check_policy(source_policy, env_s, "source")
+        _check_policy(target_policy, env_t, "target")
+        src, tgt = [], []
+        for e in range(episodes):
+            s = seed + e
+            ep_s = run_episode(
+                env_s, source_policy, s, max_steps=max_steps, deterministic=deterministic
+            )
+            options = shared_task_options(ep_s.reset_info, match_keys)
+            ep_t = run_episode(
+                env_t, target_policy, s, options, max_steps=max_steps, deterministic=deterministic
+            )
+            src.append(ep_s)
+            tgt.append(ep_t)
+        idx_s = np.asarray(env_s.unwrapped.robot_state_indices, dtype=np.int64)
+        idx_t = np.asarray(env_t.unwrapped.robot_state_indices, dtype=np.int64)
+    finally:
+        env_s.close()
+        env_t.close()
+    return src, tgt, idx_s, idx_t
+
+
+def model_inputs(episode: EpisodeRecord, robot_state_indices: np.ndarray) -> torch.Tensor:
+    """Raw model rows ``x = concat(robot_state, action)`` of every step (III.C, Eq. 7);
+    the model standardises them itself."""
+    x = np.concatenate([episode.obs[:, robot_state_indices], episode.act], axis=1)
+    return torch.as_tensor(x, dtype=torch.float32)
+
+
+def normalised_time(length: int) -> np.ndarray:
+    """Step indices scaled to [0, 1] (the colour axis of Figs. 4–7 (c))."""
+    if length <= 1:
+        return np.zeros(length)
+    return np.arange(length) / (length - 1)
+
+
+# ---------------------------------------------------------------- subspace data
+@dataclass
+class SubspaceData:
+    """Per-step posterior means of both agents on the target task.
+
+    Rows are all source steps (episode by episode) followed by all target steps.
+
+    Attributes:
+        shared: (N, K) shared posterior means (c_T from q_φS for the source, c_S from
+            q_φT for the target, Eq. 7).
+        individual: (N, K_I) individual posterior means, or None when the model has no
+            individual subspace (or the two agents' ones differ in size).
+        agent: (N,) 0 = source, 1 = target.
+        episode: (N,) episode index within the agent's rollouts.
+        step: (N,) step within the episode.
+        time: (N,) normalised time in [0, 1] (step / (episode length − 1)).
+        source_episodes / target_episodes: the rollouts, for re-simulating frames.
+        source_env_id / target_env_id / source_env_kwargs / target_env_kwargs: the envs.
+    """
+
+    shared: np.ndarray
+    individual: np.ndarray | None
+    agent: np.ndarray
+    episode: np.ndarray
+    step: np.ndarray
+    time: np.ndarray
+    source_episodes: list[EpisodeRecord]
+    target_episodes: list[EpisodeRecord]
+    source_env_id: str
+    target_env_id: str
+    source_env_kwargs: dict[str, Any] = field(default_factory=dict)
+    target_env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_points(self) -> int:
+        return int(self.agent.shape[0])
+
+
+@torch.no_grad()
+def embed_rollouts(
+    model: SharedSpaceModel,
+    source_policy: Policy,
+    target_policy: Policy,
+    source_env_id: str,
+    target_env_id: str,
+    episodes: int,
+    seed: int,
+    *,
+    match_keys: Sequence[str] = (),
+    source_env_kwargs: Mapping[str, Any] | None = None,
+    target_env_kwargs: Mapping[str, Any] | None = None,
+    max_steps: int | None = None,
+    deterministic: bool = True,
+) -> SubspaceData:
+    """Run both policies on their target-task envs and encode every step (paper IV.C:
+    "we run multiple episodes using the learned policies of the source and target agents;
+    then, for each subspace, we compute two-dimensional t-SNE embeddings").
+
+    Args:
+        model: a trained shared-space model (inputs raw ``concat(robot_state, action)``).
+        source_policy / target_policy: the source's target-task policy and the
+            transferred target policy.
+        source_env_id / target_env_id: e.g. ``pved/Reacher3Push-v0``, ``pved/Reacher4Push-v0``.
+        episodes: episodes per agent; episode ``e`` uses seed ``seed + e`` for both.
+        match_keys: task parameters copied from the source's reset to the target's
+            (e.g. ``("button_start",)``), so both solve the same instance.
+        max_steps: cap on steps per episode (None: the env's own limit).
+    """
+    src, tgt, idx_s, idx_t = run_paired_episodes(
+        source_policy,
+        target_policy,
+        source_env_id,
+        target_env_id,
+        episodes,
+        seed,
+        match_keys=match_keys,
+        source_env_kwargs=source_env_kwargs,
+        target_env_kwargs=target_env_kwargs,
+        max_steps=max_steps,
+        deterministic=deterministic,
+    )
+    if len(idx_s) != model.source_state_dim or len(idx_t) != model.target_state_dim:
+        raise PvedError(
+            f"the envs' robot states ({len(idx_s)}, {len(idx_t)}) do not match the model's "
+            f"({model.source_state_dim}, {model.target_state_dim})"
+        )
+    model.eval()
+    x_s = torch.cat([model_inputs(e, idx_s) for e in src])
+    x_t = torch.cat([model_inputs(e, idx_t) for e in tgt])
+    shared = torch.cat([model.shared_source(x_s).mean, model.shared_target(x_t).mean])
+    ind_s, ind_t = model.individual_source(x_s), model.individual_target(x_t)
+    individual: np.ndarray | None = None
+    # Both agents' individual factors go into one embedding, so they need one size.
+    if ind_s is not None and ind_t is not None and ind_s.mean.shape[1] == ind_t.mean.shape[1]:
+        individual = torch.cat([ind_s.mean, ind_t.mean]).double().numpy()
+    agent, episode, step, time = [], [], [], []
+    for a, eps in ((SOURCE, src), (TARGET, tgt)):
+        for e, ep in enumerate(eps):
+            agent.append(np.full(ep.length, a))
+            episode.append(np.full(ep.length, e))
+            step.append(np.arange(ep.length))
+            time.append(normalised_time(ep.length))
+    return SubspaceData(
+        shared=shared.double().numpy(),
+        individual=individual,
+        agent=np.concatenate(agent),
+        episode=np.concatenate(episode),
+        step=np.concatenate(step),
+        time=np.concatenate(time),
+        source_episodes=src,
+        target_episodes=tgt,
+        source_env_id=source_env_id,
+        target_env_id=target_env_id,
+        source_env_kwargs=dict(source_env_kwargs or {}),
+        target_env_kwargs=dict(target_env_kwargs or {}),
+    )
+
+
+# ------------------------------------------------------------------------ t-SNE
+def default_perplexity(num_points: int) -> float:
+    """sklearn's default 30, lowered for small point sets: perplexity must stay below the
+    number of points, and about N/3 keeps each point's neighbourhood a minority."""
+    if num_points < 3:
+        raise PvedError(f"t-SNE needs at least 3 points, got {num_points}")
+    return float(min(30.0, max(1.0, (num_points - 1) / 3.0)))
+
+
+def tsne_2d(points: np.ndarray, seed: int = 0, perplexity: float | None = None) -> np.ndarray:
+    """Two-dimensional t-SNE embedding (van der Maaten & Hinton 2008) of ``points`` (N, K),
+    with a fixed seed and PCA initialisation so reruns give the same picture."""
+    from sklearn.manifold import TSNE
+    from threadpoolctl import threadpool_limits
+
+    x = np.asarray(points, dtype=np.float64)
+    perp = default_perplexity(x.shape[0]) if perplexity is None else float(perplexity)
+    tsne = TSNE(n_components=2, perplexity=perp, init="pca", random_state=seed)
+    # One thread: with torch's OpenMP runtime loaded, sklearn's Barnes-Hut threads
+    # oversubscribe busy cores (100x slower measured); a few thousand points need
+    # only seconds on one core.
+    with threadpool_limits(limits=1):
+        return np.asarray(tsne.fit_transform(x), dtype=np.float64)
+
+
+def mark_positions(embedding: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """``k`` positions spread over a 2-D embedding: k-means centres, which sit in the
+    populated regions (a farthest-point pick would favour isolated outliers)."""
+    from sklearn.cluster import KMeans
+
+    k = min(k, embedding.shape[0])
+    km = KMeans(n_clusters=k, n_init=10, random_state=seed).fit(embedding)
+    centres = np.asarray(km.cluster_centers_)
+    # Sorted left to right so the numbering (1)..(k) reads in a fixed order.
+    return centres[np.argsort(centres[:, 0])]
+
+
+def _nearest(embedding: np.ndarray, mask: np.ndarray, position: np.ndarray) -> int:
+    rows = np.flatnonzero(mask)
+    d = np.linalg.norm(embedding[rows] - position, axis=1)
+    return int(rows[np.argmin(d)])
+
+
+def _save_figure(fig: Any, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+def _scatter(
+    embedding: np.ndarray,
+    data: SubspaceData,
+    title: str,
+    path: Path,
+    marks: np.ndarray | None = None,
+) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    divider = make_axes_locatable(ax)
+    # One colour map per agent so that agent and time can both be read (Figs. 4–7 (c)).
+    for a, cmap, marker in ((SOURCE, "viridis", "o"), (TARGET, "autumn", "^")):
+        sel = data.agent == a
+        sc = ax.scatter(
+            embedding[sel, 0],
+            embedding[sel, 1],
+            c=data.time[sel],
+            cmap=cmap,
+            vmin=0.0,
+            vmax=1.0,
+            s=8,
+            marker=marker,
+            alpha=0.8,
+            linewidths=0,
+        )
+        # Each bar gets its own axes; the second leaves room for the first's labels.
+        cax = divider.append_axes("right", size="3%", pad=0.1 if a == SOURCE else 0.75)
+        bar = fig.colorbar(sc, cax=cax)
+        bar.set_label(f"{AGENT_NAMES[a]} normalised time")
+    if marks is not None:
+        for j, pos in enumerate(marks, start=1):
+            ax.scatter([pos[0]], [pos[1]], marker="x", c="black", s=60)
+            ax.annotate(f"({j})", pos, xytext=(4, 4), textcoords="offset points", fontsize=10)
+    ax.set_title(title)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return _save_figure(fig, path)
+
+
+def replay_frame(env: Any, episode: EpisodeRecord, step: int) -> np.ndarray:
+    """The rendered state of ``episode`` before its action ``step``, re-simulated by
+    replaying its recorded actions from the same seed and options in ``env`` (a rendering
+    Gymnasium-form env of the same id): the rollouts stored no simulator states, and a
+    replay is exact because the simulation is deterministic given the seed."""
+    env.reset(seed=episode.seed, options=episode.options)
+    for t in range(step):
+        env.step(episode.act[t])
+    return np.asarray(env.render())
+
+
+def plot_tsne(
+    data: SubspaceData,
+    out_dir: Path | str,
+    marks: int = 4,
+    *,
+    seed: int = 0,
+    image_size: int = 240,
+    embeddings: Mapping[str, np.ndarray] | None = None,
+) -> list[Path]:
+    """Figs. 4–7 (a)–(g): the t-SNE scatter of the shared and (if present) the individual
+    subspace, and one PNG strip per mark with the source frame (top) and the target frame
+    (bottom) nearest to it in the shared embedding.
+
+    Args:
+        data: from :func:`embed_rollouts`.
+        out_dir: written: ``tsne_shared.png``, ``tsne_individual.png``, ``mark_<j>.png``.
+        marks: number of marks on the shared embedding (0: no frames).
+        seed: t-SNE and k-means seed.
+        image_size: width and height of the rendered frames in pixels.
+        embeddings: precomputed ``{"shared": (N, 2), "individual": (N, 2)}``.
+
+    Returns:
+        the written paths.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    emb = dict(embeddings or {})
+    if "shared" not in emb:
+        emb["shared"] = tsne_2d(data.shared, seed)
+    if data.individual is not None and "individual" not in emb:
+        emb["individual"] = tsne_2d(data.individual, seed)
+    centres = mark_positions(emb["shared"], marks, seed) if marks > 0 else None
+    paths = [
+        _scatter(emb["shared"], data, "t-SNE, shared subspace", out / "tsne_shared.png", centres)
+    ]
+    if "individual" in emb:
+        paths.append(
+            _scatter(
+                emb["individual"],
+                data,
+                "t-SNE, individual subspace",
+                out / "tsne_individual.png",
+            )
+        )
+    if centres is None:
+        return paths
+    envs = [
+        make_env(data.source_env_id, data.source_env_kwargs, render=True,
+                 width=image_size, height=image_size),
+        make_env(data.target_env_id, data.target_env_kwargs, render=True,
+                 width=image_size, height=image_size),
+    ]  # fmt: skip
+    episodes = (data.source_episodes, data.target_episodes)
+    try:
+        for j, pos in enumerate(centres, start=1):
+            fig, axes = plt.subplots(2, 1, figsize=(3.0, 6.2))
+            for a in (SOURCE, TARGET):
+                row = _nearest(emb["shared"], data.agent == a, pos)
+                ep, st = int(data.episode[row]), int(data.step[row])
+                frame = replay_frame(envs[a], episodes[a][ep], st)
+                axes[a].imshow(frame)
+                axes[a].set_title(
+                    f"{AGENT_NAMES[a]}: ep {ep}, step {st}, t={data.time[row]:.2f}", fontsize=8
+                )
+                axes[a].axis("off")
+            fig.suptitle(f"mark ({j})", fontsize=10)
+            paths.append(_save_figure(fig, out / f"mark_{j}.png"))
+    finally:
+        for env in envs:
+            env.close()
+    return paths
+
+
+# ---------------------------------------------------------------------- numbers
+def time_correspondence(features: np.ndarray, agent: np.ndarray, time: np.ndarray) -> float:
+    """Mean |t_T − t_S(nn)| over target points, where t_S(nn) is the normalised time of
+    the target point's nearest source point (Euclidean, in ``features``)."""
+    from scipy.spatial import cKDTree
+
+    src, tgt = agent == SOURCE, agent == TARGET
+    if not src.any() or not tgt.any():
+        raise PvedError("time correspondence needs points of both agents")
+    _, nn = cKDTree(features[src]).query(features[tgt], k=1)
+    return float(np.mean(np.abs(time[tgt] - time[src][nn])))
+
+
+def chance_time_difference(agent: np.ndarray, time: np.ndarray) -> float:
+    """Mean |t_T − t_S| over all cross-agent pairs: what an uninformative nearest
+    neighbour would give (1/3 for uniform times)."""
+    t_s, t_t = time[agent == SOURCE], time[agent == TARGET]
+    return float(np.mean(np.abs(t_t[:, None] - t_s[None, :])))
+
+
+def probe_accuracy(
+    features: np.ndarray, labels: np.ndarray, seed: int = 0, test_fraction: float = 0.3
+) -> float:
+    """Held-out balanced accuracy of a logistic-regression probe predicting ``labels``
+    (agent identity) from ``features``: ≈0.5 when the agents are indistinguishable by a
+    linear read-out, ≈1 when linearly separable. Balanced, so unequal episode lengths of
+    the two agents do not move the chance level off 0.5."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.metrics import balanced_accuracy_score
+    from sklearn.model_selection import train_test_split
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    x_tr, x_te, y_tr, y_te = train_test_split(
+        features, labels, test_size=test_fraction, random_state=seed, stratify=labels
+    )
+    probe = make_pipeline(StandardScaler(), LogisticRegression(max_iter=2000))
+    probe.fit(x_tr, y_tr)
+    return float(balanced_accuracy_score(y_te, probe.predict(x_te)))
+
+
+def subspace_numbers(data: SubspaceData, seed: int = 0) -> dict[str, Any]:
+    """The numbers beside Figs. 4–7, on the posterior means themselves (not the t-SNE
+    coordinates, which distort distances): per subspace the cross-agent time
+    correspondence and the agent-identity probe accuracy, plus the chance time
+    difference and the point counts."""
+    result: dict[str, Any] = {
+        "num_points": {
+            "source": int(np.sum(data.agent == SOURCE)),
+            "target": int(np.sum(data.agent == TARGET)),
+        },
+        "episodes": len(data.source_episodes),
+        "success_rate": {
+            "source": float(np.mean([e.success for e in data.source_episodes])),
+            "target": float(np.mean([e.success for e in data.target_episodes])),
+        },
+        "chance_time_difference": chance_time_difference(data.agent, data.time),
+    }
+    spaces = {"shared": data.shared, "individual": data.individual}
+    for name, feats in spaces.items():
+        if feats is None:
+            continue
+        result[name] = {
+            "dim": int(feats.shape[1]),
+            "nn_time_difference": time_correspondence(feats, data.agent, data.time),
+            "agent_probe_accuracy": probe_accuracy(feats, data.agent, seed),
+        }
+    return result
+
+
+def write_subspace_numbers(data: SubspaceData, out_dir: Path | str, seed: int = 0) -> Path:
+    """:func:`subspace_numbers` written atomically to ``out_dir/numbers.json``."""
+    path = Path(out_dir) / "numbers.json"
+    atomic_write_json(path, subspace_numbers(data, seed))
+    return path
