@@ -75,7 +75,7 @@ import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import ASSETS_DIR, BatchOfOneEnv, MujocoBatchedEnv
+from pved.envs.batched import ASSETS_DIR, BatchOfOneEnv, MujocoBatchedEnv, split_reward_terms
 from pved.errors import PvedError
 
 # ---------------------------------------------------------------- agents
@@ -498,19 +498,6 @@ class _ArmBatched(MujocoBatchedEnv):
     def _ctrl_term(self, actions: np.ndarray) -> np.ndarray:
         return -self.config.ctrl_cost_weight * np.sum(actions * actions, axis=1)
 
-    def _split_terms(self, terms: dict[str, np.ndarray]) -> tuple[np.ndarray, Info]:
-        """Sum the active terms into the reward (in ``reward_terms`` order) and report
-        the others as ``metric_*``."""
-        info: Info = {}
-        reward = np.zeros(self.num_envs)
-        for name in self.reward_terms:
-            info[f"reward_{name}"] = terms[name]
-            reward = reward + terms[name]
-        for name, value in terms.items():
-            if name not in self.reward_terms:
-                info[f"metric_{name}"] = value
-        return reward, info
-
 
 class ArmReachBatched(_ArmBatched):
     """N copies of ``pved/<agent>Reach-v0`` (see the module docstring).
@@ -590,7 +577,7 @@ class ArmReachBatched(_ArmBatched):
     def _evaluate(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Info]:
         dist = np.linalg.norm(self.peg_tip - self.target, axis=1)
         terms = {"dist": -self.config.dist_weight * dist, "ctrl": self._ctrl_term(actions)}
-        reward, info = self._split_terms(terms)
+        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
         info["is_success"] = dist < self.config.success_dist
         info["peg_tip"] = self.peg_tip.copy()
         return reward, np.zeros(self.num_envs, dtype=bool), info
@@ -705,7 +692,7 @@ class ArmPegBatched(_ArmBatched):
             "ctrl": self._ctrl_term(actions),
             "in_hole": cfg.in_hole_reward * inside.astype(np.float64),
         }
-        reward, info = self._split_terms(terms)
+        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
         success = self._success()
         info["is_success"] = success
         info["peg_tip"] = tip.copy()

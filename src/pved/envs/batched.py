@@ -43,6 +43,23 @@ def load_model(filename: str) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(path))
 
 
+def split_reward_terms(
+    terms: dict[str, np.ndarray], used: tuple[str, ...], num_envs: int
+) -> tuple[np.ndarray, Info]:
+    """The reward (N,) as the sum of the ``used`` terms, and the ``info`` entries of every
+    term: ``reward_<name>`` for those summed (in ``used`` order) and ``metric_<name>`` for
+    the others, so that the ``reward_*`` entries always add up to the reward."""
+    info: Info = {}
+    reward = np.zeros(num_envs)
+    for name in used:
+        info[f"reward_{name}"] = terms[name]
+        reward = reward + terms[name]
+    for name, value in terms.items():
+        if name not in used:
+            info[f"metric_{name}"] = value
+    return reward, info
+
+
 def _check_num_envs(num_envs: int) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
         raise PvedError(f"num_envs must be a positive integer, got {num_envs!r}")

@@ -99,7 +99,7 @@ import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv
+from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv, split_reward_terms
 from pved.envs.terrain import (
     CURVE_MAX_DEG,
     CURVE_RAMP_LENGTH,
@@ -689,14 +689,7 @@ class _LocomotionBatched(MujocoBatchedEnv):
             if cfg.contact_cost_max is not None:
                 cost = np.minimum(cost, cfg.contact_cost_max)
             terms["contact"] = -cost
-        info: Info = {}
-        reward = np.zeros(self.num_envs)
-        for name in self.reward_terms:
-            info[f"reward_{name}"] = terms[name]
-            reward = reward + terms[name]
-        for name, value in terms.items():
-            if name not in self.reward_terms:
-                info[f"metric_{name}"] = value
+        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
         info.update(self._readouts())
         info["x_velocity"] = x_velocity
         if cfg.terminate_when_unhealthy:

@@ -68,7 +68,7 @@ import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv, load_model
+from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv, load_model, split_reward_terms
 from pved.errors import PvedError
 
 # ---------------------------------------------------------------- agents
@@ -330,19 +330,6 @@ class _ReacherBatched(MujocoBatchedEnv):
     def _ctrl_term(self, actions: np.ndarray) -> np.ndarray:
         return -self.config.ctrl_cost_weight * np.sum(actions * actions, axis=1)
 
-    def _split_terms(self, terms: dict[str, np.ndarray]) -> tuple[np.ndarray, Info]:
-        """Sum the active terms into the reward (in ``reward_terms`` order, the order of
-        the ``reward_*`` info entries) and report the others as ``metric_*``."""
-        info: Info = {}
-        reward = np.zeros(self.num_envs)
-        for name in self.reward_terms:
-            info[f"reward_{name}"] = terms[name]
-            reward = reward + terms[name]
-        for name, value in terms.items():
-            if name not in self.reward_terms:
-                info[f"metric_{name}"] = value
-        return reward, info
-
 
 class ReacherReachBatched(_ReacherBatched):
     """N copies of ``pved/<agent>Reach-v0`` (see the module docstring).
@@ -425,7 +412,7 @@ class ReacherReachBatched(_ReacherBatched):
     def _evaluate(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Info]:
         dist = np.linalg.norm(self.ee_pos - self.target, axis=1)
         terms = {"dist": -self.config.dist_weight * dist, "ctrl": self._ctrl_term(actions)}
-        reward, info = self._split_terms(terms)
+        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
         info["is_success"] = dist < self.config.success_dist
         info["ee_pos"] = self.ee_pos.copy()
         return reward, np.zeros(self.num_envs, dtype=bool), info
@@ -573,7 +560,7 @@ class ReacherPushBatched(_ReacherBatched):
             "button_goal": -cfg.button_goal_weight * np.linalg.norm(button - self.goal, axis=1),
             "ctrl": self._ctrl_term(actions),
         }
-        reward, info = self._split_terms(terms)
+        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
         settled = push_settled(
             button[:, 0], self.ee_vel, cfg.goal_x, cfg.goal_tol, cfg.ee_speed_tol
         )
