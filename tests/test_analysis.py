@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
+
+# Headless rendering (the t-SNE mark strips and videos render frames); without it this file
+# passes only when another test module that sets it was collected first.
+os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import numpy as np
 import pytest

@@ -1,22 +1,160 @@
-"""Learning-curve statistics: the 95% interval is the t-interval over seeds."""
+"""Learning-curve statistics: every interval is rliable's 95% percentile bootstrap over runs."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
+import pytest
+from scipy import stats
 
-from pved.analysis.curves import load_curve, mean_ci, plot_curves
+from pved.analysis.curves import (
+    Curve,
+    Panel,
+    bootstrap_summary,
+    load_curve,
+    panels_figure,
+    plot_curves,
+    plot_panels,
+    steps_to_reach,
+)
+from pved.errors import PvedError
+
+SAMPLE = np.array([0.1, 0.2, 0.4, 0.5, 0.9, 1.0, 0.3, 0.7])
 
 
-def test_mean_ci_matches_hand_computation() -> None:
-    values = np.array([0.2, 0.4, 0.6])
-    mean, half = mean_ci(values)
-    # t_{0.975, 2} = 4.302653; sd = 0.2; sem = 0.2 / sqrt(3)
-    np.testing.assert_allclose(mean, 0.4)
-    np.testing.assert_allclose(half, 4.302653 * 0.2 / np.sqrt(3), rtol=1e-5)
-    assert mean_ci(np.array([1.0])) == (1.0, 0.0)
+def width(ci: object) -> float:
+    lo, hi = ci  # type: ignore[misc]
+    return float(hi - lo)
+
+
+def test_bootstrap_summary_point_estimates_match_hand_computation() -> None:
+    s = bootstrap_summary(SAMPLE, reps=500)
+    assert s["runs"] == 8
+    np.testing.assert_allclose(s["mean"], SAMPLE.mean())
+    # IQM: sorted 0.1 0.2 | 0.3 0.4 0.5 0.7 | 0.9 1.0 -> mean of the middle four
+    np.testing.assert_allclose(s["iqm"], (0.3 + 0.4 + 0.5 + 0.7) / 4)
+    np.testing.assert_allclose(s["iqm"], stats.trim_mean(SAMPLE, 0.25))
+    for key, point in (("mean_ci", "mean"), ("iqm_ci", "iqm")):
+        lo, hi = s[key]  # type: ignore[misc]
+        assert lo < s[point] < hi  # type: ignore[operator]
+        # a bootstrap of a mean/trimmed mean stays inside the data's range
+        assert SAMPLE.min() <= lo and hi <= SAMPLE.max()
+
+
+def test_bootstrap_ci_narrows_with_more_runs() -> None:
+    rng = np.random.default_rng(7)
+    small = bootstrap_summary(rng.normal(0.0, 1.0, 8), reps=1000)
+    large = bootstrap_summary(rng.normal(0.0, 1.0, 400), reps=1000)
+    assert width(large["mean_ci"]) < 0.5 * width(small["mean_ci"])
+    assert width(large["iqm_ci"]) < 0.5 * width(small["iqm_ci"])
+
+
+def test_bootstrap_summary_is_reproducible_and_leaves_global_rng_alone() -> None:
+    # the global RNG on purpose: it is what rliable draws from
+    np.random.seed(123)  # noqa: NPY002
+    expected_next = np.random.random()  # noqa: NPY002
+    np.random.seed(123)  # noqa: NPY002
+    a = bootstrap_summary(SAMPLE, reps=300, seed=4)
+    assert np.random.random() == expected_next  # noqa: NPY002  (caller's stream untouched)
+    b = bootstrap_summary(SAMPLE, reps=300, seed=4)
+    c = bootstrap_summary(SAMPLE, reps=300, seed=5)
+    assert a == b
+    assert a["mean_ci"] != c["mean_ci"]  # the seed is what makes it reproducible
+
+
+def test_bootstrap_summary_degenerate_and_bad_input() -> None:
+    one = bootstrap_summary(np.array([0.7]))
+    assert one == {"runs": 1, "mean": 0.7, "iqm": 0.7, "mean_ci": [0.7, 0.7], "iqm_ci": [0.7, 0.7]}
+    for bad in (np.array([0.1, np.nan, 0.3]), np.array([0.1, np.inf]), np.array([])):
+        with pytest.raises(PvedError) as info:
+            bootstrap_summary(bad)
+        assert "\n" not in str(info.value)
+
+
+def toy_curve(values: list[list[float]], method: str = "m") -> Curve:
+    v = np.asarray(values, dtype=np.float64)
+    return Curve(method, np.arange(v.shape[1]) * 100, v, list(range(v.shape[0])))
+
+
+def test_band_brackets_the_mean_and_is_zero_where_runs_agree() -> None:
+    rng = np.random.default_rng(0)
+    values = rng.uniform(0.0, 1.0, (5, 6))
+    values[:, 2] = 0.4  # every run agrees at this step
+    curve = toy_curve(values.tolist())
+    lo, hi = curve.band(reps=500)
+    mean = curve.mean
+    assert lo.shape == hi.shape == mean.shape == (6,)
+    assert np.all(lo <= mean) and np.all(mean <= hi)
+    assert hi[2] - lo[2] == 0.0 and lo[2] == pytest.approx(0.4)
+    others = np.delete(hi - lo, 2)
+    assert np.all(others > 0)
+    same_lo, same_hi = curve.band(reps=500)
+    np.testing.assert_array_equal(lo, same_lo)
+    np.testing.assert_array_equal(hi, same_hi)
+    one_lo, one_hi = toy_curve(values[:1].tolist()).band()
+    np.testing.assert_array_equal(one_lo, values[0])
+    np.testing.assert_array_equal(one_hi, values[0])
+    with pytest.raises(PvedError):
+        toy_curve([[0.1, np.nan], [0.2, 0.3]]).band()
+
+
+def test_steps_to_reach_first_step_at_or_above_threshold() -> None:
+    # mean over the two runs: 0, 0.25, 0.5, 0.5 at steps 0, 100, 200, 300
+    curve = toy_curve([[0.0, 0.25, 0.5, 0.75], [0.0, 0.25, 0.5, 0.25]])
+    assert steps_to_reach(curve, 0.5) == 200  # reached with equality, first of two
+    assert steps_to_reach(curve, 0.3) == 200
+    assert steps_to_reach(curve, 0.0) == 0
+    assert steps_to_reach(curve, 0.75) is None  # one run gets there, the mean does not
+
+
+def two_panels() -> list[Panel]:
+    rng = np.random.default_rng(1)
+    panels = []
+    for title in ("reacher", "arm"):
+        curves = [
+            toy_curve(rng.uniform(0, 1, (n, 5)).tolist(), method)
+            for method, n in (("ppo", 3), ("pved", 2))
+        ]
+        panels.append(Panel(title, "success rate", curves, bounds=(0.0, 1.0)))
+    return panels
+
+
+def test_panels_figure_layout_colours_and_legend() -> None:
+    panels = two_panels()
+    fig = panels_figure(panels, reps=100)
+    try:
+        assert len(fig.axes) == 2
+        assert [ax.get_title() for ax in fig.axes] == ["reacher", "arm"]
+        left, right = (ax.get_position() for ax in fig.axes)
+        assert left.x1 <= right.x0 and left.y0 == pytest.approx(right.y0)  # side by side
+        texts = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert texts == ["ppo (n=3)", "pved (n=2)"]
+        # the same method has the same colour in both panels, the two methods differ
+        colours = [
+            {line.get_color() for line in ax.get_lines() if line.get_alpha() is None}
+            for ax in fig.axes
+        ]
+        assert colours[0] == colours[1] and len(colours[0]) == 2
+    finally:
+        plt.close(fig)
+    fig = panels_figure(panels * 2 + panels[:1], reps=20)  # 5 panels: 2 rows of 3, one empty
+    try:
+        assert len(fig.axes) == 5
+        assert len({round(ax.get_position().y0, 3) for ax in fig.axes}) == 2
+    finally:
+        plt.close(fig)
+
+
+def test_plot_panels_writes_png_atomically(tmp_path: Path) -> None:
+    out = plot_panels(two_panels(), tmp_path / "fig" / "fig3.png", reps=100)
+    assert out == tmp_path / "fig" / "fig3.png"
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 1000
+    assert [p.name for p in out.parent.iterdir()] == ["fig3.png"]  # no temp file left
+    with pytest.raises(PvedError):
+        plot_panels([], tmp_path / "empty.png")
 
 
 def test_curve_from_metrics_and_plot(tmp_path: Path) -> None:

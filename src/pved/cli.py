@@ -157,6 +157,29 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     print(f"report: {out.resolve()}")
 
 
+def _cmd_protocol(args: argparse.Namespace) -> None:
+    from pved.experiments.protocol import run_protocol
+
+    summary = run_protocol(
+        args.pair,
+        budget=args.budget,
+        methods=args.methods,
+        out=args.out,
+        address=args.address,
+        workers=args.workers,
+        retries=args.retries,
+    )
+    failed = len(summary["failed"]) + len(summary["blocked"])
+    print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
+
+
+def _cmd_plot(args: argparse.Namespace) -> None:
+    from pved.experiments.protocol import plot_protocols
+
+    for path in plot_protocols(args.dirs, combined=args.out):
+        print(path)
+
+
 def _cmd_tsne(args: argparse.Namespace) -> None:
     from pved.experiments.stages import analyze_subspaces
 
@@ -336,6 +359,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=_cmd_video)
+
+    p = sub.add_parser(
+        "protocol",
+        help="the paper's tuning and evaluation protocol (IV.A) on Ray",
+        description="beta and model selection on the tuning seeds, then every evaluation "
+        "seed x source policy; curves with bootstrap CIs, summary.json/md. Rerunning the "
+        "same command resumes.",
+    )
+    p.add_argument("--pair", nargs="+", required=True)
+    p.add_argument("--budget", default="smoke", help="smoke | quick | paper")
+    p.add_argument("--methods", nargs="+", default=["pved", "ppo"])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--address", help="a running Ray cluster (default: a local one)")
+    p.add_argument("--workers", type=int, help="CPUs of the local Ray (default: all)")
+    p.add_argument("--retries", type=int, default=2, help="attempts after a run's failure")
+    p.set_defaults(func=_cmd_protocol)
+
+    p = sub.add_parser("plot", help="redraw a protocol's curves and summary from its runs")
+    p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")
+    p.add_argument("--out", type=Path, help="with several DIRs: one figure of all their pairs")
+    p.set_defaults(func=_cmd_plot)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))

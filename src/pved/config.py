@@ -74,6 +74,17 @@ class PairPreset:
     # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
     policy: PPOConfig = field(default_factory=PPOConfig)
     policy_overrides: tuple[tuple[str, str, PPOConfig], ...] = ()
+    # The protocol's grid for the shaping weight (beta of Eq. 10; Gupta's alpha), searched
+    # on the tuning seeds (paper IV.A; the paper does not print its grid). Per-method
+    # grids in ``method_beta_grids`` replace it for that method.
+    beta_grid: tuple[float, ...] = (0.1, 0.01, 0.001)
+    method_beta_grids: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    # Env steps of one transfer run under each protocol budget (see ``BUDGETS``).
+    protocol_steps: tuple[tuple[str, int], ...] = (
+        ("smoke", 8192),
+        ("quick", 300_000),
+        ("paper", 1_000_000),
+    )
 
     def model_config(self, name: str, **overrides: Any) -> ModelConfig:
         """The config of model ``name`` for this pair: every field it shares with the
@@ -89,12 +100,90 @@ class PairPreset:
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
 
+    def beta_grid_for(self, method: str) -> tuple[float, ...]:
+        """The beta values the protocol tries for ``method``."""
+        return dict(self.method_beta_grids).get(method, self.beta_grid)
+
+    def transfer_steps(self, budget: str) -> int:
+        """Env steps of one transfer run under protocol ``budget``."""
+        steps = dict(self.protocol_steps)
+        if budget not in steps:
+            raise PvedError(f"unknown budget {budget!r}; known budgets: {', '.join(steps)}")
+        return steps[budget]
+
     def policy_config(self, agent: str, task: str) -> PPOConfig:
         """The PPO config used to train ``agent`` on ``task`` for this pair."""
         for over_agent, over_task, cfg in self.policy_overrides:
             if (over_agent, over_task) == (agent, task):
                 return cfg
         return self.policy
+
+
+@dataclass(frozen=True)
+class ProtocolBudget:
+    """How much of the paper's protocol (IV.A) one ``pved protocol`` run does.
+
+    ``None`` fields take the pair preset's value; steps per transfer run are the preset's
+    ``protocol_steps[name]``.
+
+    Attributes:
+        name: ``smoke`` (minutes on a laptop: checks that every stage connects),
+            ``quick`` (a first real answer) or ``paper`` (the full protocol).
+        tuning_seeds, evaluation_seeds: PPO seeds of the transfer runs (paper IV.A).
+        source_policies: source target-task policies (seeds 0..k-1); each evaluation
+            seed is run once per source policy.
+        model_inits: model initialisations (seeds 0..k-1) tried at the selected beta.
+        beta_grid_size: how many of the grid's values to try (None: all).
+        eval_every, eval_episodes, final_eval_episodes: learning-curve schedule.
+        pair_episodes, model_epochs, bank_episodes, policy_steps: sizes of the earlier
+            stages; ``policy_steps`` only matters for policies the package does not ship.
+    """
+
+    name: str
+    tuning_seeds: tuple[int, ...] = TUNING_SEEDS
+    evaluation_seeds: tuple[int, ...] = EVALUATION_SEEDS
+    source_policies: int = 3
+    model_inits: int = 3
+    beta_grid_size: int | None = None
+    eval_every: int | None = None
+    eval_episodes: int | None = None
+    final_eval_episodes: int | None = None
+    pair_episodes: int | None = None
+    model_epochs: int | None = None
+    bank_episodes: int | None = None
+    policy_steps: int | None = None
+
+
+BUDGETS: dict[str, ProtocolBudget] = {
+    # every stage of the protocol on a few thousand steps: a CI test, not a result
+    "smoke": ProtocolBudget(
+        name="smoke",
+        tuning_seeds=TUNING_SEEDS[:2],
+        evaluation_seeds=EVALUATION_SEEDS[:2],
+        source_policies=1,
+        model_inits=2,
+        beta_grid_size=2,
+        eval_every=4096,
+        eval_episodes=16,
+        final_eval_episodes=32,
+        pair_episodes=64,
+        model_epochs=2,
+        bank_episodes=16,
+        policy_steps=16_384,
+    ),
+    # the full design with three tuning seeds and shorter runs
+    "quick": ProtocolBudget(name="quick", tuning_seeds=TUNING_SEEDS[:3]),
+    # paper IV.A: 5 tuning seeds, 3 source policies x 5 evaluation seeds, 3 model inits
+    "paper": ProtocolBudget(name="paper"),
+}
+
+
+def get_budget(name: str) -> ProtocolBudget:
+    """The protocol budget ``name``; an unknown name raises :class:`PvedError`."""
+    try:
+        return BUDGETS[name]
+    except KeyError:
+        raise PvedError(f"unknown budget {name!r}; known budgets: {', '.join(BUDGETS)}") from None
 
 
 def _reacher_preset() -> PairPreset:

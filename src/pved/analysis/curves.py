@@ -1,20 +1,116 @@
-"""Learning curves over environment steps: mean and 95% confidence interval over seeds."""
+"""Learning curves over environment steps and the project's one kind of confidence interval:
+a 95% percentile bootstrap over runs (seeds), computed with rliable
+(``rliable.library.get_interval_estimates``), as Agarwal et al. (2021) recommend for few-run
+RL results."""
 
 from __future__ import annotations
 
+import io
 import json
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import stats
 
 from pved.errors import PvedError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+CI_SIZE = 0.95
+"""Coverage of every interval this module reports."""
+
+
+@contextmanager
+def _seeded_global_rng(seed: int) -> Iterator[None]:
+    """Seed numpy's global RNG for the block and restore its previous state afterwards.
+
+    rliable's ``StratifiedBootstrap`` draws its resampling indices with ``np.random.choice``
+    (the global RNG) and ignores its ``random_state`` argument for them, so this is the only
+    way to make its intervals reproducible without leaving the caller's RNG changed. (Hence
+    the legacy global-RNG calls, which ruff's NPY002 would otherwise steer away from.)"""
+    state = np.random.get_state()  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
+def _bootstrap(
+    scores: np.ndarray, func: Callable[[np.ndarray], np.ndarray], reps: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """rliable's stratified percentile bootstrap of ``func`` over the runs (axis 0) of
+    ``scores`` (runs, k). Returns (point estimates (m,), intervals (2, m): row 0 the lower,
+    row 1 the upper 95% bounds)."""
+    if reps < 1:
+        raise PvedError(f"bootstrap needs reps >= 1, got {reps}")
+    # Imported here: rliable pulls in arch and pandas, which take seconds to import.
+    from rliable import library as rly
+
+    with _seeded_global_rng(seed):
+        point, interval = rly.get_interval_estimates(
+            {"scores": scores},
+            func,
+            reps=reps,
+            confidence_interval_size=CI_SIZE,
+        )
+    return np.asarray(point["scores"], np.float64), np.asarray(interval["scores"], np.float64)
+
+
+def _finite(values: np.ndarray, what: str) -> np.ndarray:
+    """``values`` as float64, or a PvedError if it is empty or holds NaN/inf."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 0:
+        raise PvedError(f"{what}: no values to summarise")
+    if not np.all(np.isfinite(values)):
+        bad = int(np.size(values) - np.count_nonzero(np.isfinite(values)))
+        raise PvedError(f"{what}: {bad} of {values.size} values are NaN or infinite")
+    return values
+
+
+def bootstrap_summary(
+    scores: np.ndarray, reps: int = 2000, seed: int = 0
+) -> dict[str, float | list[float] | int]:
+    """Mean and interquartile mean (IQM, the 25%-trimmed mean) of per-run final scores, each
+    with its 95% percentile bootstrap CI over runs (rliable, ``reps`` resamples, reproducible
+    for a given ``seed``; numpy's global RNG is left as it was).
+
+    Returns ``{"runs": n, "mean": m, "iqm": q, "mean_ci": [lo, hi], "iqm_ci": [lo, hi]}``.
+    With one run both intervals are degenerate, ``[x, x]``. Raises PvedError for an empty,
+    non-1-D or non-finite ``scores``."""
+    values = _finite(scores, "bootstrap_summary")
+    if values.ndim != 1:
+        raise PvedError(f"bootstrap_summary wants a 1-D array of run scores, got {values.shape}")
+    n = int(values.size)
+    if n == 1:
+        # One run has no spread to resample; the interval is the value itself.
+        x = float(values[0])
+        return {"runs": 1, "mean": x, "iqm": x, "mean_ci": [x, x], "iqm_ci": [x, x]}
+    from rliable import metrics
+
+    def mean_and_iqm(s: np.ndarray) -> np.ndarray:
+        # Both statistics from the same resamples: one bootstrap pass instead of two.
+        return np.array([metrics.aggregate_mean(s), metrics.aggregate_iqm(s)])
+
+    # rliable wants (runs, tasks); the final scores are one task.
+    point, interval = _bootstrap(values[:, None], mean_and_iqm, reps, seed)
+    return {
+        "runs": n,
+        "mean": float(point[0]),
+        "iqm": float(point[1]),
+        "mean_ci": [float(interval[0, 0]), float(interval[1, 0])],
+        "iqm_ci": [float(interval[0, 1]), float(interval[1, 1])],
+    }
 
 
 @dataclass
 class Curve:
-    """One method's curve: ``values`` (seeds, points) at env ``steps`` (points,)."""
+    """One method's curve: ``values`` (runs, points) at env ``steps`` (points,)."""
 
     method: str
     steps: np.ndarray
@@ -23,25 +119,33 @@ class Curve:
 
     @property
     def mean(self) -> np.ndarray:
+        """Mean over runs at each evaluation step, shape (points,)."""
         return np.asarray(self.values.mean(0))
 
-    @property
-    def ci95(self) -> np.ndarray:
-        """Half-width of the 95% t-interval of the mean over seeds (0 for one seed)."""
-        n = self.values.shape[0]
-        if n < 2:
-            return np.zeros(self.values.shape[1])
-        sem = self.values.std(0, ddof=1) / np.sqrt(n)
-        return np.asarray(stats.t.ppf(0.975, n - 1) * sem)
+    def band(self, reps: int = 2000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), each (points,): per evaluation step, the 95% percentile bootstrap CI of
+        the mean over runs (rliable, ``reps`` resamples, reproducible for a given ``seed``).
+        One run gives a zero-width band on the mean. Raises PvedError for NaN/inf values."""
+        values = _finite(self.values, f"curve of {self.method}")
+        if values.shape[0] == 1:
+            return values[0].copy(), values[0].copy()
+        # Each step is one rliable "task": the stratified bootstrap resamples runs per step,
+        # which gives each step's marginal interval of the mean.
+        _, interval = _bootstrap(values, lambda s: np.asarray(s.mean(0)), reps, seed)
+        return interval[0], interval[1]
 
 
-def mean_ci(values: np.ndarray) -> tuple[float, float]:
-    """Mean and 95% t-interval half-width of a 1-D sample."""
-    values = np.asarray(values, dtype=np.float64)
-    if values.size < 2:
-        return float(values.mean()), 0.0
-    sem = values.std(ddof=1) / np.sqrt(values.size)
-    return float(values.mean()), float(stats.t.ppf(0.975, values.size - 1) * sem)
+def steps_to_reach(curve: Curve, threshold: float) -> int | None:
+    """The first evaluation step at which ``curve``'s mean over runs is >= ``threshold``, or
+    None if it never gets there.
+
+    This is how "the steps each method needs to reach the plain-PPO baseline's final
+    performance" is measured: pass the baseline's final mean as ``threshold``. It reads the
+    evaluation schedule, so its resolution is the evaluation interval."""
+    if not math.isfinite(threshold):
+        raise PvedError(f"steps_to_reach needs a finite threshold, got {threshold}")
+    reached = np.flatnonzero(curve.mean >= threshold)
+    return int(curve.steps[reached[0]]) if reached.size else None
 
 
 def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -68,6 +172,112 @@ def load_curve(method: str, run_dirs: list[Path], seeds: list[int], key: str) ->
     return Curve(method, steps, values, list(seeds))
 
 
+@dataclass
+class Panel:
+    """One subplot of a curves figure (e.g. one source-target pair). ``bounds``: the
+    metric's range (e.g. (0, 1) for a success rate); bands are clipped to it."""
+
+    title: str
+    ylabel: str
+    curves: list[Curve]
+    bounds: tuple[float, float] | None = None
+
+
+def _run_counts(counts: set[int]) -> str:
+    """Legend text for a method's run counts over panels: ``n=5``, or ``n=3-5`` if they differ."""
+    lo, hi = min(counts), max(counts)
+    return f"n={lo}" if lo == hi else f"n={lo}-{hi}"
+
+
+def panels_figure(panels: list[Panel], reps: int = 2000) -> Figure:
+    """The paper's Fig. 3 layout as a matplotlib Figure (not saved, not closed): one subplot
+    per panel side by side (two rows if there are more than 3), x = environment steps; per
+    method its mean over runs, a shaded 95% bootstrap band of the mean (``reps`` resamples,
+    clipped to the panel's bounds) and each run faintly; one colour per method name in every
+    panel; one shared legend with each method's run count. Returns the figure; its
+    ``axes`` are exactly the panels' subplots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not panels:
+        raise PvedError("plot_panels needs at least one panel")
+    methods: list[str] = []
+    counts: dict[str, set[int]] = {}
+    for panel in panels:
+        for curve in panel.curves:
+            if curve.method not in counts:
+                methods.append(curve.method)
+                counts[curve.method] = set()
+            counts[curve.method].add(int(curve.values.shape[0]))
+    # Colours are fixed by the order methods first appear, so a method keeps its colour in
+    # every panel even where another method is missing.
+    palette = matplotlib.colormaps["tab10"]
+    colour = {m: palette(i % palette.N) for i, m in enumerate(methods)}
+
+    rows = 1 if len(panels) <= 3 else 2
+    cols = math.ceil(len(panels) / rows)
+    fig, grid = plt.subplots(
+        rows,
+        cols,
+        figsize=(4.6 * cols, 3.6 * rows + 0.6),
+        dpi=120,
+        squeeze=False,
+        layout="constrained",
+    )
+    axes = list(grid.flat)
+    for ax in axes[len(panels) :]:
+        fig.delaxes(ax)  # the odd empty cell when wrapping to two rows
+    handles: dict[str, Any] = {}  # method -> its mean line, for the shared legend
+    for ax, panel in zip(axes, panels, strict=False):
+        for curve in panel.curves:
+            c = colour[curve.method]
+            low, high = curve.band(reps=reps)
+            if panel.bounds is not None:
+                # The bootstrap of a mean stays within the data's range, but clip anyway so
+                # a band never draws outside a bounded metric's range.
+                low, high = np.clip(low, *panel.bounds), np.clip(high, *panel.bounds)
+            for run_values in curve.values:
+                ax.plot(curve.steps, run_values, color=c, alpha=0.25, lw=0.7)
+            ax.fill_between(curve.steps, low, high, color=c, alpha=0.2, lw=0)
+            (handles[curve.method],) = ax.plot(curve.steps, curve.mean, color=c, lw=1.6)
+        if panel.bounds is not None:
+            margin = 0.03 * (panel.bounds[1] - panel.bounds[0])
+            ax.set_ylim(panel.bounds[0] - margin, panel.bounds[1] + margin)
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel(panel.ylabel)
+        ax.set_title(panel.title)
+        ax.grid(alpha=0.3)
+    if methods:
+        fig.legend(
+            [handles[m] for m in methods],
+            [f"{m} ({_run_counts(counts[m])})" for m in methods],
+            loc="outside lower center",
+            ncol=min(len(methods), 6),
+            frameon=False,
+        )
+    return fig
+
+
+def plot_panels(panels: list[Panel], path: Path, reps: int = 2000) -> Path:
+    """Draw ``panels`` as in :func:`panels_figure` and save the PNG atomically (readers see
+    the old file or the whole new one). Returns ``path``."""
+    fig = panels_figure(panels, reps=reps)  # first: it selects the Agg backend
+    import matplotlib.pyplot as plt
+
+    # Imported here: pved.runs imports torch, which plotting alone does not otherwise need.
+    from pved.runs import atomic_write_bytes
+
+    buffer = io.BytesIO()
+    try:
+        fig.savefig(buffer, format="png")
+    finally:
+        plt.close(fig)
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
 def plot_curves(
     curves: list[Curve],
     path: Path,
@@ -75,36 +285,6 @@ def plot_curves(
     title: str,
     bounds: tuple[float, float] | None = None,
 ) -> Path:
-    """Mean ± 95% CI per method over env steps, each seed's curve faintly behind it,
-    saved as PNG. ``bounds``: the metric's range (e.g. (0, 1) for a success rate); the
-    t-interval, which knows no bounds, is drawn clipped to it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
-    for curve in curves:
-        mean, ci = curve.mean, curve.ci95
-        low, high = mean - ci, mean + ci
-        if bounds is not None:
-            low, high = np.clip(low, *bounds), np.clip(high, *bounds)
-        (line,) = ax.plot(curve.steps, mean, label=f"{curve.method} (n={len(curve.seeds)})")
-        ax.fill_between(curve.steps, low, high, alpha=0.2, color=line.get_color())
-        for seed_values in curve.values:
-            ax.plot(curve.steps, seed_values, color=line.get_color(), alpha=0.25, lw=0.7)
-    if bounds is not None:
-        margin = 0.03 * (bounds[1] - bounds[0])
-        ax.set_ylim(bounds[0] - margin, bounds[1] + margin)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    """One-panel :func:`plot_panels`: mean and 95% bootstrap band per method over env steps,
+    each run faintly behind it, saved as PNG. Returns ``path``."""
+    return plot_panels([Panel(title, ylabel, curves, bounds)], path)

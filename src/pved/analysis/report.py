@@ -10,9 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import Curve, load_curve, mean_ci, plot_curves
+from pved.analysis.curves import Curve, bootstrap_summary, load_curve, plot_curves
 from pved.errors import PvedError
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
+
+
+def _mean_ci(mean: float, ci: list[float], digits: int) -> str:
+    """Table cell ``mean [lo, hi]`` with ``digits`` decimals."""
+    return f"{mean:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
 def transfer_report(
@@ -44,20 +49,20 @@ def transfer_report(
         final = np.array([r[f"final/{metric}"] for r in results], dtype=np.float64)
         final_ret = np.array([r["final/return_mean"] for r in results], dtype=np.float64)
         auc = curves[metric][-1].values.mean(1)  # mean over the curve's points, per seed
-        m, ci = mean_ci(final)
-        a, aci = mean_ci(auc)
-        r, rci = mean_ci(final_ret)
+        fin, cur, ret = (bootstrap_summary(x) for x in (final, auc, final_ret))
         rows.append(
             {
                 "method": method,
                 "seeds": seeds,
                 f"final_{metric}": final.tolist(),
-                "final_mean": m,
-                "final_ci95": ci,
-                "curve_mean": a,
-                "curve_ci95": aci,
-                "final_return_mean": r,
-                "final_return_ci95": rci,
+                "final_mean": fin["mean"],
+                "final_ci95": fin["mean_ci"],  # [lo, hi]
+                "final_iqm": fin["iqm"],
+                "final_iqm_ci95": fin["iqm_ci"],
+                "curve_mean": cur["mean"],
+                "curve_ci95": cur["mean_ci"],
+                "final_return_mean": ret["mean"],
+                "final_return_ci95": ret["mean_ci"],
                 "steps": int(results[0]["steps"]),
             }
         )
@@ -79,21 +84,31 @@ def transfer_report(
         "",
         f"Final {metric} is measured on fresh episodes after training; 'curve mean' is the "
         "mean of the evaluation points along training (a sample-efficiency summary). "
-        "± is the 95% t-interval over seeds.",
+        "[lo, hi] is the 95% percentile bootstrap interval of the mean over seeds "
+        "(rliable, 2000 resamples; [x, x] for one seed).",
         "",
-        f"| method | seeds | env steps | final {metric} | per seed | curve mean | final return |",
+        f"| method | seeds | env steps | final {metric}: mean [95% CI] | per seed "
+        "| curve mean [95% CI] | final return: mean [95% CI] |",
         "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         per_seed = " ".join(f"{v:.2f}" for v in row[f"final_{metric}"])
         lines.append(
             f"| {row['method']} | {len(row['seeds'])} | {row['steps']} | "
-            f"{row['final_mean']:.3f} ± {row['final_ci95']:.3f} | {per_seed} | "
-            f"{row['curve_mean']:.3f} ± {row['curve_ci95']:.3f} | "
-            f"{row['final_return_mean']:.2f} ± {row['final_return_ci95']:.2f} |"
+            f"{_mean_ci(row['final_mean'], row['final_ci95'], 3)} | {per_seed} | "
+            f"{_mean_ci(row['curve_mean'], row['curve_ci95'], 3)} | "
+            f"{_mean_ci(row['final_return_mean'], row['final_return_ci95'], 2)} |"
         )
     atomic_write_bytes(out / "results.md", ("\n".join(lines) + "\n").encode())
     atomic_write_json(
-        out / "results.json", {"pair": pair, "metric": metric, "rows": rows, **(extra or {})}
+        out / "results.json",
+        {
+            "pair": pair,
+            "metric": metric,
+            # *_ci95 used to be t-interval half-widths; say what they are now.
+            "ci95": "[lo, hi], 95% percentile bootstrap over seeds (rliable, 2000 reps, seed 0)",
+            "rows": rows,
+            **(extra or {}),
+        },
     )
     return out

@@ -426,10 +426,14 @@ def transfer(
     eval_episodes: int | None = None,
     final_eval_episodes: int | None = None,
     runs_root: Path = DEFAULT_RUNS,
+    run_name: str | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
+
+    The run lives in ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``;
+    a ``run_name`` keeps apart runs of one method with different betas, models or banks.
 
     ``method`` is a model name (``pved``, a variant, ``gupta2017``: the target agent's
     restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
@@ -480,7 +484,7 @@ def transfer(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-    run = Run(run_path(runs_root, pair, "transfer", method, seed), config)
+    run = Run(run_path(runs_root, pair, "transfer", run_name or method, seed), config)
     if run.is_done():
         return run.read_result()
     run.start()

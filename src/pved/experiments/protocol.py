@@ -1,0 +1,702 @@
+"""The paper's experimental protocol (IV.A, "Parameter-tuning and performance evaluation")
+as one job graph: ``pved protocol``.
+
+For each pair and each shaping method (a model name: ``pved``, a variant, ``gupta2017``):
+
+1. beta (Gupta's alpha) is chosen on the tuning seeds with model initialisation 0 and
+   source policy 0, from the pair's grid (``PairPreset.beta_grid_for``);
+2. the chosen beta is applied to model initialisations 1, 2, ... on the same seeds, and
+   the initialisation that does best is kept (init 0's runs at that beta count too);
+3. the kept model and beta are evaluated on every evaluation seed with every source
+   policy (3 x 5 = 15 runs at the paper budget).
+
+The reference methods (``ppo``: the target's restricted reward alone; ``oracle``: the
+source's full reward) have nothing to tune and no source; each evaluation seed s is run
+as seeds s, s+1, ..., one per source policy, so every method has the same number of
+independent runs. "Does best" is the mean over tuning seeds of the pair's metric
+(success rate, or distance along x), ties broken by the mean final return.
+
+Every stage is an ordinary run directory under ``OUT/runs`` (policies the package does
+not ship are trained first), so ``pved protocol`` again after an interruption reuses
+what finished and resumes the rest. ``protocol.json`` records the plan;
+:func:`summarize` rebuilds the selection, ``summary.json``/``summary.md`` and the curves
+from the run files alone (``pved plot``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pved import __version__
+from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
+from pved.errors import PvedError
+from pved.experiments.runner import Job, RunnerReport, run_jobs
+from pved.experiments.stages import (
+    NO_TRANSFER,
+    REFERENCE_METHODS,
+    build_bank,
+    collect_pairs,
+    default_dataset_path,
+    default_model_path,
+    train_model,
+    train_policy,
+    transfer,
+)
+from pved.models.registry import model_class
+from pved.pretrained import PRETRAINED_DIR
+from pved.runs import atomic_write_bytes, atomic_write_json, run_path
+
+if TYPE_CHECKING:
+    from pved.analysis.curves import Panel
+
+PLAN_FILE = "protocol.json"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One tuning configuration of a method and its score on the tuning seeds."""
+
+    beta: float
+    init: int
+    scores: tuple[float, ...]  # the metric of each tuning seed's run
+    returns: tuple[float, ...]  # the final return of each (the tie-breaker)
+
+    @property
+    def key(self) -> tuple[float, float]:
+        return (float(np.mean(self.scores)), float(np.mean(self.returns)))
+
+
+def _best(candidates: Sequence[Candidate]) -> Candidate:
+    """The candidate with the highest mean score (then mean return); the first on ties,
+    so the grid's order decides a complete tie."""
+    best = candidates[0]
+    for cand in candidates[1:]:
+        if cand.key > best.key:
+            best = cand
+    return best
+
+
+def _beta_tag(beta: float) -> str:
+    return f"{beta:g}"
+
+
+class ProtocolPlan:
+    """The job graph of the protocol for some pairs and methods (a runner ``Planner``)."""
+
+    def __init__(
+        self, pairs: Sequence[str], methods: Sequence[str], budget: str, out: Path
+    ) -> None:
+        if not pairs:
+            raise PvedError("protocol needs at least one pair")
+        if not methods:
+            raise PvedError("protocol needs at least one method")
+        for pair in pairs:
+            get_preset(pair)
+        for method in methods:
+            if method not in REFERENCE_METHODS:
+                model_class(method)  # an unknown name fails here with the known ones
+        if len(set(methods)) != len(methods) or len(set(pairs)) != len(pairs):
+            raise PvedError("protocol: a pair or method is named twice")
+        self.pairs = list(pairs)
+        self.methods = list(methods)
+        self.budget: ProtocolBudget = get_budget(budget)
+        self.out = Path(out).resolve()
+        self.runs = self.out / "runs"
+        # what each selection chose, filled in by expand() as results arrive
+        self.selection: dict[str, dict[str, Any]] = {}
+
+    # -- plan file -------------------------------------------------------------------
+
+    def describe(self) -> dict[str, Any]:
+        """The plan as written to ``protocol.json`` (what a restart must match)."""
+        b = self.budget
+        return {
+            "pairs": self.pairs,
+            "methods": self.methods,
+            "budget": dataclasses.asdict(b),
+            "transfer_steps": {p: get_preset(p).transfer_steps(b.name) for p in self.pairs},
+            "beta_grids": {
+                p: {m: list(self._grid(p, m)) for m in self.model_methods} for p in self.pairs
+            },
+        }
+
+    @classmethod
+    def load(cls, out: Path) -> ProtocolPlan:
+        """The plan of an existing protocol directory."""
+        path = Path(out) / PLAN_FILE
+        try:
+            plan = json.loads(path.read_text())
+            return cls(plan["pairs"], plan["methods"], plan["budget"]["name"], Path(out))
+        except FileNotFoundError:
+            raise PvedError(f"{out} is not a protocol directory (no {PLAN_FILE})") from None
+        except (json.JSONDecodeError, KeyError, TypeError) as err:
+            raise PvedError(f"{path} is not a readable protocol plan ({err})") from None
+
+    # -- pieces ----------------------------------------------------------------------
+
+    @property
+    def model_methods(self) -> list[str]:
+        return [m for m in self.methods if m not in REFERENCE_METHODS]
+
+    def _grid(self, pair: str, method: str) -> tuple[float, ...]:
+        grid = get_preset(pair).beta_grid_for(method)
+        size = self.budget.beta_grid_size
+        return grid if size is None else grid[:size]
+
+    def _policy(self, agent: str, task: str, seed: int) -> tuple[Path, Job | None]:
+        """The policy file of ``agent`` on ``task`` with ``seed``: the shipped one, or
+        the run that trains it (and that job)."""
+        shipped = PRETRAINED_DIR / f"{agent.lower()}_{task.lower()}_seed{seed}.pt"
+        if shipped.exists():
+            return shipped, None
+        preset = preset_for_agent(agent)
+        run_dir = run_path(self.runs, preset.name, "policy", f"{agent}-{task}", seed)
+        steps = self.budget.policy_steps or preset.policy_config(agent, task).total_steps
+        job = Job(
+            key=f"policy/{agent}-{task}/seed{seed}",
+            fn=train_policy,
+            kwargs={
+                "agent": agent,
+                "task": task,
+                "seed": seed,
+                "steps": self.budget.policy_steps,
+                "runs_root": self.runs,
+                "progress": False,
+            },
+            steps=steps,
+            run_dir=run_dir,
+        )
+        return run_dir / "policy.pt", job
+
+    def _transfer_job(
+        self,
+        pair: str,
+        method: str,
+        seed: int,
+        *,
+        beta: float | None = None,
+        init: int = 0,
+        source: int = 0,
+        deps: tuple[str, ...] = (),
+    ) -> Job:
+        preset = get_preset(pair)
+        b = self.budget
+        steps = preset.transfer_steps(b.name)
+        kwargs: dict[str, Any] = {
+            "pair": pair,
+            "method": method,
+            "seed": seed,
+            "steps": steps,
+            "eval_every": b.eval_every,
+            "eval_episodes": b.eval_episodes,
+            "final_eval_episodes": b.final_eval_episodes,
+            "runs_root": self.runs,
+            "progress": False,
+        }
+        if method in REFERENCE_METHODS:
+            name = method
+        else:
+            assert beta is not None
+            name = f"{method}-beta{_beta_tag(beta)}-init{init}-src{source}"
+            kwargs.update(
+                beta=beta,
+                model_path=default_model_path(pair, method, self.runs, seed=init),
+                bank_path=self._bank_path(pair, source),
+            )
+        kwargs["run_name"] = name
+        return Job(
+            key=f"{pair}/transfer/{name}/seed{seed}",
+            fn=transfer,
+            kwargs=kwargs,
+            deps=deps,
+            steps=steps,
+            run_dir=run_path(self.runs, pair, "transfer", name, seed),
+            tags={"source_policy": source, "init": init, "beta": beta},
+        )
+
+    def _bank_path(self, pair: str, source: int) -> Path:
+        preset = get_preset(pair)
+        name = f"{preset.source_agent}-{preset.target_task}"
+        return run_path(self.runs, pair, "bank", name, source) / "bank.npz"
+
+    def _model_job(self, pair: str, method: str, init: int, deps: tuple[str, ...]) -> Job:
+        return Job(
+            key=f"{pair}/model/{method}/init{init}",
+            fn=train_model,
+            kwargs={
+                "pair": pair,
+                "model": method,
+                "dataset": default_dataset_path(pair, self.runs),
+                "seed": init,
+                "epochs": self.budget.model_epochs,
+                "runs_root": self.runs,
+                "progress": False,
+            },
+            deps=deps,
+            run_dir=run_path(self.runs, pair, "model", method, init),
+        )
+
+    # -- the graph ---------------------------------------------------------------------
+
+    def expand(self, results: Mapping[str, Any]) -> list[Job]:
+        """Every job definable from ``results``; records selections as they are made."""
+        jobs: list[Job] = []
+        for pair in self.pairs:
+            jobs.extend(self._expand_pair(pair, results))
+        return jobs
+
+    def _expand_pair(self, pair: str, results: Mapping[str, Any]) -> list[Job]:
+        preset = get_preset(pair)
+        b = self.budget
+        jobs: list[Job] = []
+        seen: set[str] = set()
+
+        def add(job: Job | None) -> str | None:
+            if job is None:
+                return None
+            if job.key not in seen:
+                seen.add(job.key)
+                jobs.append(job)
+            return job.key
+
+        eval_jobs = [
+            self._transfer_job(pair, method, seed + k, source=k)
+            for method in self.methods
+            if method in REFERENCE_METHODS
+            for k in range(b.source_policies)
+            for seed in b.evaluation_seeds
+        ]
+        for job in eval_jobs:
+            add(job)
+        if not self.model_methods:
+            return jobs
+
+        # the earlier stages: training-task policies, pairs, banks of each source policy
+        src_train, src_job = self._policy(preset.source_agent, preset.training_task, 0)
+        tgt_train, tgt_job = self._policy(preset.target_agent, preset.training_task, 0)
+        policy_deps = tuple(k for k in (add(src_job), add(tgt_job)) if k)
+        pairs_key = add(
+            Job(
+                key=f"{pair}/pairs",
+                fn=collect_pairs,
+                kwargs={
+                    "pair": pair,
+                    "source_policy": src_train,
+                    "target_policy": tgt_train,
+                    "episodes": b.pair_episodes,
+                    "runs_root": self.runs,
+                    "progress": False,
+                },
+                deps=policy_deps,
+                run_dir=default_dataset_path(pair, self.runs).parent,
+            )
+        )
+        assert pairs_key is not None
+        bank_keys: list[str] = []
+        for k in range(b.source_policies):
+            path, policy_job = self._policy(preset.source_agent, preset.target_task, k)
+            dep = add(policy_job)
+            bank_key = add(
+                Job(
+                    key=f"{pair}/bank/src{k}",
+                    fn=build_bank,
+                    kwargs={
+                        "pair": pair,
+                        "source_policy": path,
+                        "episodes": b.bank_episodes,
+                        "seed": k,
+                        "runs_root": self.runs,
+                    },
+                    deps=(dep,) if dep else (),
+                    run_dir=self._bank_path(pair, k).parent,
+                )
+            )
+            assert bank_key is not None
+            bank_keys.append(bank_key)
+
+        for method in self.model_methods:
+            model0 = add(self._model_job(pair, method, 0, (pairs_key,)))
+            assert model0 is not None
+            grid = self._grid(pair, method)
+            tuning: dict[tuple[float, int], list[Job]] = {}
+            for beta in grid:
+                tuning[(beta, 0)] = [
+                    self._transfer_job(pair, method, s, beta=beta, deps=(model0, bank_keys[0]))
+                    for s in b.tuning_seeds
+                ]
+            for group in tuning.values():
+                for job in group:
+                    add(job)
+            state: dict[str, Any] = {"beta_grid": list(grid), "candidates": []}
+            self.selection.setdefault(pair, {})[method] = state
+            beta_candidates = _candidates(tuning, results)
+            state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
+            if len(beta_candidates) < len(grid):
+                continue
+            chosen_beta = _best(beta_candidates).beta
+            state["beta"] = chosen_beta
+            for init in range(1, b.model_inits):
+                model_key = add(self._model_job(pair, method, init, (pairs_key,)))
+                assert model_key is not None
+                tuning[(chosen_beta, init)] = [
+                    self._transfer_job(
+                        pair,
+                        method,
+                        s,
+                        beta=chosen_beta,
+                        init=init,
+                        deps=(model_key, bank_keys[0]),
+                    )
+                    for s in b.tuning_seeds
+                ]
+                for job in tuning[(chosen_beta, init)]:
+                    add(job)
+            init_candidates = [c for c in _candidates(tuning, results) if c.beta == chosen_beta]
+            state["candidates"] = [dataclasses.asdict(c) for c in _candidates(tuning, results)]
+            if len(init_candidates) < b.model_inits:
+                continue
+            chosen_init = _best(init_candidates).init
+            state["init"] = chosen_init
+            model_key = f"{pair}/model/{method}/init{chosen_init}"
+            for k in range(b.source_policies):
+                for s in b.evaluation_seeds:
+                    add(
+                        self._transfer_job(
+                            pair,
+                            method,
+                            s,
+                            beta=chosen_beta,
+                            init=chosen_init,
+                            source=k,
+                            deps=(model_key, bank_keys[k]),
+                        )
+                    )
+        return jobs
+
+    def evaluation_jobs(self, pair: str, method: str) -> list[Job]:
+        """The evaluation runs of ``method`` on ``pair`` (after its selection is made;
+        empty while it is not)."""
+        b = self.budget
+        if method in REFERENCE_METHODS:
+            return [
+                self._transfer_job(pair, method, s + k, source=k)
+                for k in range(b.source_policies)
+                for s in b.evaluation_seeds
+            ]
+        state = self.selection.get(pair, {}).get(method, {})
+        if "init" not in state:
+            return []
+        return [
+            self._transfer_job(pair, method, s, beta=state["beta"], init=state["init"], source=k)
+            for k in range(b.source_policies)
+            for s in b.evaluation_seeds
+        ]
+
+    def expected_steps(self) -> int:
+        """Env steps of every RL run of the plan (policies to train included)."""
+        b = self.budget
+        total = 0
+        for pair in self.pairs:
+            preset = get_preset(pair)
+            steps = preset.transfer_steps(b.name)
+            per_eval = b.source_policies * len(b.evaluation_seeds)
+            for method in self.methods:
+                runs = per_eval
+                if method not in REFERENCE_METHODS:
+                    tuning = len(self._grid(pair, method)) + b.model_inits - 1
+                    runs += tuning * len(b.tuning_seeds)
+                total += runs * steps
+            if self.model_methods:
+                needed = [(preset.source_agent, preset.training_task, 0)]
+                needed.append((preset.target_agent, preset.training_task, 0))
+                needed += [
+                    (preset.source_agent, preset.target_task, k) for k in range(b.source_policies)
+                ]
+                for agent, task, seed in needed:
+                    _, job = self._policy(agent, task, seed)
+                    total += job.steps if job else 0
+        return total
+
+
+def _candidates(
+    groups: Mapping[tuple[float, int], Sequence[Job]], results: Mapping[str, Any]
+) -> list[Candidate]:
+    """The candidates whose tuning runs have all finished, in the groups' order."""
+    out: list[Candidate] = []
+    for (beta, init), jobs in groups.items():
+        if not all(j.key in results for j in jobs):
+            continue
+        pair = jobs[0].kwargs["pair"]
+        metric = get_preset(pair).metric
+        scores = tuple(float(results[j.key][f"final/{metric}"]) for j in jobs)
+        returns = tuple(float(results[j.key]["final/return_mean"]) for j in jobs)
+        out.append(Candidate(beta=beta, init=init, scores=scores, returns=returns))
+    return out
+
+
+# -- running it -------------------------------------------------------------------------
+
+
+def run_protocol(
+    pairs: Sequence[str],
+    *,
+    budget: str = "smoke",
+    methods: Sequence[str] = ("pved", NO_TRANSFER),
+    out: Path | str,
+    address: str | None = None,
+    workers: int | None = None,
+    retries: int = 2,
+    live: bool = True,
+) -> dict[str, Any]:
+    """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
+
+    A directory that already holds a protocol must hold the same one (pairs, methods,
+    budget): its finished runs are reused and unfinished ones resumed."""
+    plan = ProtocolPlan(pairs, methods, budget, Path(out))
+    plan_path = plan.out / PLAN_FILE
+    description = plan.describe()
+    if plan_path.exists():
+        try:
+            existing = json.loads(plan_path.read_text())
+        except json.JSONDecodeError:
+            raise PvedError(f"{plan_path} is corrupt; remove it or use another --out") from None
+        if {k: existing.get(k) for k in description} != json.loads(json.dumps(description)):
+            raise PvedError(
+                f"{plan.out} holds a protocol with other settings "
+                f"(pairs {existing.get('pairs')}, methods {existing.get('methods')}, budget "
+                f"{existing.get('budget', {}).get('name')}); use another --out"
+            )
+    else:
+        plan.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(plan_path, {**description, "pved_version": __version__})
+    report = run_jobs(
+        plan,
+        workers=workers,
+        address=address,
+        retries=retries,
+        status_path=plan.out / "status.json",
+        log_dir=plan.out / "failures",
+        live=live,
+    )
+    return summarize(plan.out, report)
+
+
+def _finished_results(plan: ProtocolPlan) -> dict[str, Any]:
+    """Results of the plan's jobs read from their run directories, expanding the graph
+    until no more finished jobs are found (the selections are remade on the way)."""
+    results: dict[str, Any] = {}
+    while True:
+        added = False
+        for job in plan.expand(results):
+            if job.key in results or job.run_dir is None:
+                continue
+            result_file = job.run_dir / "result.json"
+            if result_file.exists():
+                results[job.key] = json.loads(result_file.read_text())
+                added = True
+        if not added:
+            return results
+
+
+def pair_panel(
+    plan: ProtocolPlan, pair: str, results: Mapping[str, Any], title: str | None = None
+) -> Panel | None:
+    """The learning curves of every method's finished evaluation runs on ``pair`` (one
+    panel of Fig. 3), or None when no method has any."""
+    from pved.analysis.curves import Panel, load_curve
+
+    metric = get_preset(pair).metric
+    curves = []
+    for method in plan.methods:
+        run_dirs = [
+            j.run_dir
+            for j in plan.evaluation_jobs(pair, method)
+            if j.key in results and j.run_dir is not None
+        ]
+        if run_dirs:
+            curves.append(
+                load_curve(method, run_dirs, list(range(len(run_dirs))), f"eval/{metric}")
+            )
+    if not curves:
+        return None
+    return Panel(
+        title=title or pair,
+        ylabel=metric.replace("_", " "),
+        curves=curves,
+        bounds=(0.0, 1.0) if metric == "success_rate" else None,
+    )
+
+
+def summarize(out: Path | str, report: RunnerReport | None = None) -> dict[str, Any]:
+    """Write ``selection.json``, ``summary.json``, ``summary.md``, ``curves.png`` and
+    ``curves-<pair>.png`` of a protocol directory from its run files; returns the summary.
+
+    ``report`` (from the run that just ended) adds failed and blocked jobs; without it
+    (``pved plot``) the summary lists the runs that are missing instead."""
+    from pved.analysis.curves import bootstrap_summary, plot_panels, steps_to_reach
+
+    out = Path(out).resolve()
+    plan = ProtocolPlan.load(out)
+    results = _finished_results(plan)
+    summary: dict[str, Any] = {
+        "pved_version": __version__,
+        "budget": plan.budget.name,
+        "pairs": {},
+        "selection": plan.selection,
+        "failed": dict(report.failed) if report else {},
+        "blocked": list(report.blocked) if report else [],
+        "reused": len(report.reused) if report else None,
+        "wall_s": report.wall_s if report else None,
+    }
+    panels = []
+    for pair in plan.pairs:
+        preset = get_preset(pair)
+        metric = preset.metric
+        methods: dict[str, Any] = {}
+        for method in plan.methods:
+            jobs = plan.evaluation_jobs(pair, method)
+            done = [j for j in jobs if j.key in results]
+            entry: dict[str, Any] = {
+                "runs_planned": len(jobs),
+                "runs_finished": len(done),
+                "missing": [j.key for j in jobs if j.key not in results],
+            }
+            state = plan.selection.get(pair, {}).get(method, {})
+            if "beta" in state:
+                entry.update(beta=state["beta"], init=state.get("init"))
+            if done:
+                scores = np.array([results[j.key][f"final/{metric}"] for j in done], float)
+                entry["final"] = bootstrap_summary(scores)
+                entry["runs"] = [
+                    {
+                        "key": j.key,
+                        "seed": j.kwargs["seed"],
+                        "source_policy": j.tags["source_policy"],
+                        metric: float(results[j.key][f"final/{metric}"]),
+                        "result": str(j.run_dir / "result.json") if j.run_dir else None,
+                    }
+                    for j in done
+                ]
+            methods[method] = entry
+        panel = pair_panel(plan, pair, results)
+        curves = panel.curves if panel else []
+        for curve in curves:
+            methods[curve.method]["curve_steps"] = curve.steps.tolist()
+            methods[curve.method]["curve_mean"] = curve.mean.tolist()
+        # steps to the plain-PPO baseline's final performance (its mean curve's last point)
+        ppo_curve = next((c for c in curves if c.method == NO_TRANSFER), None)
+        if ppo_curve is not None:
+            threshold = float(ppo_curve.mean[-1])
+            for curve in curves:
+                methods[curve.method]["ppo_final"] = threshold
+                methods[curve.method]["steps_to_ppo_final"] = steps_to_reach(curve, threshold)
+        summary["pairs"][pair] = {"metric": metric, "methods": methods}
+        if panel is not None:
+            panels.append(panel)
+            plot_panels([panel], out / f"curves-{pair}.png")
+    if panels:
+        plot_panels(panels, out / "curves.png")
+    atomic_write_json(out / "selection.json", plan.selection)
+    atomic_write_json(out / "summary.json", summary)
+    atomic_write_bytes(out / "summary.md", _markdown(summary, plan).encode())
+    return summary
+
+
+def _fmt(x: float | None, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "–"
+    return f"{x:.{digits}f}"
+
+
+def _with_ci(value: float, ci: Sequence[float]) -> str:
+    return f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
+
+
+def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
+    b = plan.budget
+    lines = [
+        f"# Protocol summary ({b.name} budget)",
+        "",
+        f"Tuning seeds {list(b.tuning_seeds)}; evaluation seeds {list(b.evaluation_seeds)} "
+        f"x {b.source_policies} source policies; {b.model_inits} model initialisations. "
+        "Final performance over the evaluation runs: mean and interquartile mean (IQM) "
+        "with 95% stratified-bootstrap confidence intervals (rliable).",
+        "",
+    ]
+    for pair, info in summary["pairs"].items():
+        metric = info["metric"]
+        lines += [
+            f"## {pair} ({metric})",
+            "",
+            f"![curves](curves-{pair}.png)",
+            "",
+            "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final | beta | init |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for method, m in info["methods"].items():
+            final = m.get("final")
+            if final:
+                mean = _with_ci(final["mean"], final["mean_ci"])
+                iqm = _with_ci(final["iqm"], final["iqm_ci"])
+            else:
+                mean = iqm = "–"
+            reach = m.get("steps_to_ppo_final", "–")
+            if "ppo_final" in m and reach is None:
+                reach = "not reached"
+            beta = m.get("beta", "–")
+            init = m.get("init", "–")
+            lines.append(
+                f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
+                f"{reach} | {beta} | {init} |"
+            )
+        lines.append("")
+        for method, state in summary["selection"].get(pair, {}).items():
+            lines.append(f"Selection of {method} (mean {metric} over the tuning seeds):")
+            lines.append("")
+            for cand in state.get("candidates", []):
+                lines.append(
+                    f"- beta {cand['beta']:g}, init {cand['init']}: "
+                    f"{_fmt(float(np.mean(cand['scores'])))} (runs: "
+                    f"{', '.join(_fmt(s) for s in cand['scores'])}; mean final return "
+                    f"{_fmt(float(np.mean(cand['returns'])), 2)})"
+                )
+            lines.append("")
+    if summary["failed"] or summary["blocked"]:
+        lines += ["## Failed runs", ""]
+        for key, err in summary["failed"].items():
+            lines.append(f"- `{key}`: {err} (tracebacks in failures/)")
+        for key in summary["blocked"]:
+            lines.append(f"- `{key}`: not run, a run it needs failed")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_protocols(dirs: Sequence[Path | str], combined: Path | str | None = None) -> list[Path]:
+    """Redraw each protocol directory's summary and curves from its finished runs
+    (``pved plot``); with ``combined``, also one figure with every pair of every
+    directory (Fig. 3's layout). Returns the figures written."""
+    from pved.analysis.curves import plot_panels
+
+    written: list[Path] = []
+    panels: list[Panel] = []
+    for d in dirs:
+        out = Path(d).resolve()
+        summarize(out)
+        written.append(out / "curves.png")
+        plan = ProtocolPlan.load(out)
+        results = _finished_results(plan)
+        for pair in plan.pairs:
+            panel = pair_panel(plan, pair, results, title=f"{pair} ({plan.budget.name})")
+            if panel is not None:
+                panels.append(panel)
+    if combined is not None and panels:
+        written.append(plot_panels(panels, Path(combined)))
+    return [p for p in written if p.exists()]

@@ -1,0 +1,337 @@
+"""Run a growing graph of stage jobs on Ray: one CPU per job, bounded retries, a live view.
+
+The protocol (:mod:`pved.experiments.protocol`) does not know all its runs in advance:
+which beta the evaluation runs use is decided when the tuning runs are done. So the runner
+asks a *planner* for jobs again after every finished job: ``planner.expand(results)``
+returns every job that can be defined from the results so far (the same job again each
+time, by key), and the runner submits those whose dependencies have finished. The planner
+stays a pure function of finished results, which is what makes a restart cheap: every stage
+skips a run whose ``result.json`` exists and resumes one that has checkpoints, so after a
+crash or ``kill -9`` the same command walks the same graph, finds most jobs done at once
+and continues the rest from their last checkpoints.
+
+Ray is started locally with ``workers`` CPUs unless ``address`` names a running cluster
+(whose nodes must have ``pved`` installed and see the output directory, e.g. on a shared
+file system). A job that raises, or whose worker dies, is submitted again up to
+``retries`` times, then recorded as failed with its error; jobs that depend on it are
+reported as blocked. Nothing is hidden: the final :class:`RunnerReport` lists both.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from pved.errors import PvedError
+from pved.runs import atomic_write_json
+
+#: Environment of every worker: one thread per run (parallelism comes from runs side by
+#: side), headless rendering.
+WORKER_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "MUJOCO_GL": os.environ.get("MUJOCO_GL", "osmesa"),
+    "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "osmesa"),
+}
+
+
+@dataclass(frozen=True)
+class Job:
+    """One stage call.
+
+    Attributes:
+        key: unique name of the job in the graph (also its name in reports).
+        fn: the stage function, called as ``fn(**kwargs)`` in a worker; it must be
+            importable there (a module-level function) and return JSON-able data.
+        kwargs: its arguments (picklable).
+        deps: keys of the jobs that must have finished first.
+        steps: env steps it will take (0 when it is not an RL run): progress and ETA.
+        run_dir: its run directory, when known: ``metrics.jsonl`` there gives the live
+            progress and ``result.json`` there says it was finished before this call.
+        tags: what the experiment wants to remember about it (not passed to ``fn``).
+    """
+
+    key: str
+    fn: Callable[..., Any]
+    kwargs: Mapping[str, Any] = field(default_factory=dict)
+    deps: tuple[str, ...] = ()
+    steps: int = 0
+    run_dir: Path | None = None
+    tags: Mapping[str, Any] = field(default_factory=dict)
+
+
+class Planner(Protocol):
+    """What the runner needs from the experiment it runs."""
+
+    def expand(self, results: Mapping[str, Any]) -> list[Job]:
+        """Every job definable from the finished jobs' ``results`` (by key)."""
+        ...
+
+    def expected_steps(self) -> int:
+        """Env steps of the whole experiment, including jobs not yet definable."""
+        ...
+
+
+@dataclass
+class RunnerReport:
+    """What happened: each finished job's result, the failures and the blocked jobs."""
+
+    results: dict[str, Any]
+    failed: dict[str, str]  # key -> last error (one line)
+    blocked: list[str]  # keys of jobs that could not run because a dependency failed
+    reused: list[str]  # keys of jobs finished by an earlier invocation
+    attempts: dict[str, int]
+    wall_s: float
+
+
+def _call(fn: Callable[..., Any], kwargs: Mapping[str, Any]) -> Any:
+    """Worker side of a job: one thread, then the stage function."""
+    import torch
+
+    torch.set_num_threads(1)
+    return fn(**kwargs)
+
+
+def _last_step(metrics: Path) -> int:
+    """The ``step`` of the last record of a ``metrics.jsonl`` (0 if none yet)."""
+    try:
+        with metrics.open("rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            size = fh.tell()
+            fh.seek(max(0, size - 4096))
+            lines = fh.read().decode(errors="replace").splitlines()
+    except OSError:
+        return 0
+    for line in reversed(lines):
+        try:
+            return int(json.loads(line)["step"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return 0
+
+
+class LiveView:
+    """Runs done / running / failed, env steps per second and ETA: one line rewritten
+    in place on a terminal, a line every ``every_s`` seconds otherwise; also written to
+    ``status.json`` in the output directory for watching from elsewhere."""
+
+    def __init__(self, status_path: Path | None, stream: Any = None, every_s: float = 30.0):
+        self.status_path = status_path
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every_s = 1.0 if self.tty else every_s
+        self.last = 0.0
+        self.start = time.monotonic()
+        self.start_steps: int | None = None
+
+    def update(
+        self,
+        done: int,
+        running: int,
+        failed: int,
+        pending: int,
+        steps: int,
+        total: int,
+        force: bool = False,
+    ) -> dict[str, Any]:
+        now = time.monotonic()
+        if self.start_steps is None:
+            self.start_steps = steps
+        elapsed = now - self.start
+        rate = (steps - self.start_steps) / elapsed if elapsed > 0 else 0.0
+        eta = (total - steps) / rate if rate > 0 else None
+        status = {
+            "done": done,
+            "running": running,
+            "failed": failed,
+            "pending": pending,
+            "env_steps": steps,
+            "env_steps_total": total,
+            "steps_per_s": rate,
+            "eta_s": eta,
+            "elapsed_s": elapsed,
+        }
+        if force or now - self.last >= self.every_s:
+            self.last = now
+            eta_text = "?" if eta is None else time.strftime("%H:%M:%S", time.gmtime(eta))
+            line = (
+                f"runs: {done} done, {running} running, {failed} failed, {pending} waiting | "
+                f"{steps:,}/{total:,} env steps | {rate:,.0f} steps/s | ETA {eta_text}"
+            )
+            if self.tty:
+                self.stream.write("\r\x1b[2K" + line)
+            else:
+                self.stream.write(line + "\n")
+            self.stream.flush()
+            if self.status_path is not None:
+                atomic_write_json(self.status_path, status)
+        return status
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def run_jobs(
+    planner: Planner,
+    *,
+    workers: int | None = None,
+    address: str | None = None,
+    retries: int = 2,
+    status_path: Path | None = None,
+    log_dir: Path | None = None,
+    live: bool = True,
+    poll_s: float = 1.0,
+) -> RunnerReport:
+    """Run ``planner``'s jobs on Ray until none is left to run.
+
+    Args:
+        planner: gives the jobs (see :class:`Planner`).
+        workers: CPUs of the local Ray instance (default: all); ignored with ``address``.
+        address: a running Ray cluster to attach to (``ray start --head`` prints it);
+            None starts a local instance that ends with this call.
+        retries: how many times a failed job is submitted again before it is reported.
+        status_path: where the live view's ``status.json`` goes.
+        log_dir: where each failed attempt's traceback is written (``<key>.txt``).
+        live: print the live view.
+    """
+    import ray
+
+    if retries < 0:
+        raise PvedError(f"retries must be >= 0, got {retries}")
+    started_here = not ray.is_initialized()
+    if started_here:
+        init: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "runtime_env": {"env_vars": WORKER_ENV},
+        }
+        if address:
+            init["address"] = address
+        else:
+            init["num_cpus"] = workers or os.cpu_count() or 1
+        ray.init(**init)
+    # max_retries=0: the retries are ours, so that each attempt's error can be recorded
+    remote_call = ray.remote(num_cpus=1, max_retries=0)(_call)
+
+    t0 = time.monotonic()
+    results: dict[str, Any] = {}
+    failed: dict[str, str] = {}
+    attempts: dict[str, int] = {}
+    reused: list[str] = []
+    in_flight: dict[Any, Job] = {}
+    known: dict[str, Job] = {}
+    view = LiveView(status_path) if live else None
+
+    def submit(job: Job) -> None:
+        attempts[job.key] = attempts.get(job.key, 0) + 1
+        if attempts[job.key] == 1 and job.run_dir is not None:
+            if (job.run_dir / "result.json").exists():
+                reused.append(job.key)
+        in_flight[remote_call.remote(job.fn, dict(job.kwargs))] = job
+
+    def blocked_keys() -> list[str]:
+        bad = set(failed)
+        changed = True
+        while changed:
+            changed = False
+            for job in known.values():
+                if job.key not in bad and any(d in bad for d in job.deps):
+                    bad.add(job.key)
+                    changed = True
+        return sorted(bad - set(failed))
+
+    def progress_steps() -> int:
+        steps = sum(known[k].steps for k in results if k in known)
+        for job in in_flight.values():
+            if job.run_dir is not None and job.steps:
+                steps += min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
+        return steps
+
+    try:
+        while True:
+            for job in planner.expand(results):
+                if job.key not in known:
+                    known[job.key] = job
+            running_keys = {j.key for j in in_flight.values()}
+            blocked = set(blocked_keys())
+            for job in known.values():
+                if (
+                    job.key not in results
+                    and job.key not in failed
+                    and job.key not in running_keys
+                    and job.key not in blocked
+                    and all(d in results for d in job.deps)
+                ):
+                    submit(job)
+            if view is not None:
+                pending = len(known) - len(results) - len(failed) - len(in_flight)
+                view.update(
+                    len(results),
+                    len(in_flight),
+                    len(failed),
+                    pending,
+                    progress_steps(),
+                    max(planner.expected_steps(), progress_steps()),
+                )
+            if not in_flight:
+                break
+            ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=poll_s)
+            for ref in ready:
+                job = in_flight.pop(ref)
+                try:
+                    results[job.key] = ray.get(ref)
+                except Exception as err:  # a stage error or a dead worker: retry, then report
+                    message = _one_line(err)
+                    if log_dir is not None:
+                        log_dir.mkdir(parents=True, exist_ok=True)
+                        with (log_dir / f"{job.key.replace('/', '_')}.txt").open("a") as fh:
+                            fh.write(f"attempt {attempts[job.key]}:\n")
+                            fh.write("".join(traceback.format_exception(err)) + "\n")
+                    if attempts[job.key] <= retries:
+                        submit(job)
+                    else:
+                        failed[job.key] = message
+        if view is not None:
+            view.update(
+                len(results),
+                0,
+                len(failed),
+                0,
+                progress_steps(),
+                max(planner.expected_steps(), progress_steps()),
+                force=True,
+            )
+            view.close()
+    finally:
+        if started_here:
+            ray.shutdown()
+    return RunnerReport(
+        results=results,
+        failed=failed,
+        blocked=blocked_keys(),
+        reused=reused,
+        attempts=attempts,
+        wall_s=time.monotonic() - t0,
+    )
+
+
+def _one_line(err: BaseException) -> str:
+    """The innermost error's message on one line (Ray wraps task errors)."""
+    cause: BaseException = err
+    inner = getattr(err, "cause", None)
+    if isinstance(inner, BaseException):
+        cause = inner
+    text = str(cause).strip().splitlines()
+    # Ray's own message starts with the traceback; its last line is the actual error
+    line = text[-1] if text else type(cause).__name__
+    return f"{type(cause).__name__}: {line}" if type(cause).__name__ not in line else line

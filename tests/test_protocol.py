@@ -1,0 +1,282 @@
+"""The protocol (paper IV.A) as a job graph, the Ray runner, and ``pved protocol`` end to end."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pved.config import get_budget, get_preset
+from pved.errors import PvedError
+from pved.experiments.protocol import ProtocolPlan
+from pved.experiments.runner import Job, run_jobs
+
+ROOT = Path(__file__).resolve().parents[1]
+PVED = [sys.executable, "-m", "pved.cli"]
+
+
+def _fake(score: float, ret: float = 0.0) -> dict[str, float]:
+    return {"final/success_rate": score, "final/return_mean": ret}
+
+
+def _keys(jobs: list[Job]) -> set[str]:
+    return {j.key for j in jobs}
+
+
+def test_plan_selects_beta_then_init_then_evaluates(tmp_path: Path) -> None:
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", tmp_path)
+    budget = get_budget("smoke")
+    grid = get_preset("reacher").beta_grid[: budget.beta_grid_size]
+    assert len(grid) == 2 and len(budget.tuning_seeds) == 2
+
+    jobs = plan.expand({})
+    keys = _keys(jobs)
+    # nothing to select yet: pairs, model init 0, the bank, beta x tuning-seed runs, and
+    # the reference method's evaluation runs
+    assert "reacher/pairs" in keys and "reacher/model/pved/init0" in keys
+    assert "reacher/bank/src0" in keys
+    tuning = [j for j in jobs if j.key.startswith("reacher/transfer/pved-")]
+    assert len(tuning) == len(grid) * len(budget.tuning_seeds)
+    assert all(j.tags["init"] == 0 and j.tags["source_policy"] == 0 for j in tuning)
+    assert not any("init1" in k for k in keys)
+    ppo = [j for j in jobs if "/transfer/ppo/" in j.key]
+    assert len(ppo) == budget.source_policies * len(budget.evaluation_seeds)
+    # the shipped policies are used: nothing to train
+    assert not any(k.startswith("policy/") for k in keys)
+
+    # the second beta wins on the tuning seeds
+    results: dict[str, Any] = {
+        j.key: _fake(0.2) for j in jobs if not j.key.startswith("reacher/transfer")
+    }
+    for j in tuning:
+        results[j.key] = _fake(0.9 if j.tags["beta"] == grid[1] else 0.1)
+    jobs = plan.expand(results)
+    init1 = [j for j in jobs if "init1" in j.key and "/transfer/" in j.key]
+    assert len(init1) == len(budget.tuning_seeds)
+    assert all(j.kwargs["beta"] == grid[1] for j in init1)
+    assert "reacher/model/pved/init1" in _keys(jobs)
+    assert plan.selection["reacher"]["pved"]["beta"] == grid[1]
+    assert not plan.evaluation_jobs("reacher", "pved")
+
+    # init 1 does better at that beta: the evaluation runs use it
+    for j in init1:
+        results[j.key] = _fake(1.0)
+    jobs = plan.expand(results)
+    assert plan.selection["reacher"]["pved"]["init"] == 1
+    evaluation = plan.evaluation_jobs("reacher", "pved")
+    assert len(evaluation) == budget.source_policies * len(budget.evaluation_seeds)
+    assert _keys(evaluation) <= _keys(jobs)
+    assert all(j.kwargs["beta"] == grid[1] and j.tags["init"] == 1 for j in evaluation)
+    assert all(j.kwargs["model_path"].parent.name == "seed1" for j in evaluation)
+    candidates = plan.selection["reacher"]["pved"]["candidates"]
+    assert len(candidates) == len(grid) + 1  # every beta at init 0, then init 1
+
+
+def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> None:
+    plan = ProtocolPlan(["reacher"], ["pved"], "smoke", tmp_path)
+    grid = get_preset("reacher").beta_grid[:2]
+    jobs = plan.expand({})
+    results: dict[str, Any] = {j.key: _fake(0.0) for j in jobs}
+    for j in jobs:
+        if "/transfer/" in j.key:
+            results[j.key] = _fake(0.5, ret=-3.0 if j.tags["beta"] == grid[0] else -1.0)
+    plan.expand(results)
+    assert plan.selection["reacher"]["pved"]["beta"] == grid[1]
+
+
+def test_plan_rejects_unknown_names(tmp_path: Path) -> None:
+    with pytest.raises(PvedError, match="unknown pair"):
+        ProtocolPlan(["nope"], ["pved"], "smoke", tmp_path)
+    with pytest.raises(PvedError, match="unknown model"):
+        ProtocolPlan(["reacher"], ["pvde"], "smoke", tmp_path)
+    with pytest.raises(PvedError, match="unknown budget"):
+        ProtocolPlan(["reacher"], ["pved"], "huge", tmp_path)
+
+
+def test_plan_trains_the_policies_the_package_does_not_ship(tmp_path: Path) -> None:
+    plan = ProtocolPlan(["reacher"], ["pved"], "quick", tmp_path)
+    keys = _keys(plan.expand({}))
+    # seed 0 of the source's Push policy is shipped; seeds 1 and 2 must be trained
+    assert "policy/Reacher3-Push/seed1" in keys and "policy/Reacher3-Push/seed2" in keys
+    assert "policy/Reacher3-Push/seed0" not in keys
+    bank2 = next(j for j in plan.expand({}) if j.key == "reacher/bank/src2")
+    assert bank2.deps == ("policy/Reacher3-Push/seed2",)
+
+
+# -- the runner ---------------------------------------------------------------------------
+
+
+def _ok(value: int) -> int:
+    return value
+
+
+def _always_fails() -> None:
+    raise ValueError("this run always fails")
+
+
+def _fails_once(marker: str) -> str:
+    path = Path(marker)
+    if not path.exists():
+        path.write_text("tried")
+        raise RuntimeError("first attempt fails")
+    return "second attempt"
+
+
+class _FixedPlan:
+    def __init__(self, jobs: list[Job]):
+        self.jobs = jobs
+
+    def expand(self, results: Mapping[str, Any]) -> list[Job]:
+        return self.jobs
+
+    def expected_steps(self) -> int:
+        return 0
+
+
+def test_runner_retries_then_reports_failures_and_blocked_jobs(tmp_path: Path) -> None:
+    from ray import cloudpickle
+
+    # Ray's workers import functions by module; this test module is not importable there
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    jobs = [
+        Job("a", _ok, {"value": 3}),
+        Job("b", _always_fails),
+        Job("c", _ok, {"value": 4}, deps=("b",)),
+        Job("d", _fails_once, {"marker": str(tmp_path / "marker")}),
+        Job("e", _ok, {"value": 5}, deps=("a",)),
+    ]
+    report = run_jobs(_FixedPlan(jobs), workers=2, retries=2, log_dir=tmp_path / "logs", live=False)
+    assert report.results == {"a": 3, "d": "second attempt", "e": 5}
+    assert list(report.failed) == ["b"] and "this run always fails" in report.failed["b"]
+    assert "\n" not in report.failed["b"]
+    assert report.attempts["b"] == 3 and report.attempts["d"] == 2 and report.attempts["a"] == 1
+    assert report.blocked == ["c"]
+    assert "this run always fails" in (tmp_path / "logs" / "b.txt").read_text()
+
+
+# -- end to end -----------------------------------------------------------------------------
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(OMP_NUM_THREADS="1", MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
+    return env
+
+
+@pytest.mark.slow
+def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
+    """`pved protocol --budget smoke` on the Reacher pair with two methods: killed with
+    SIGKILL once the first transfer run has finished, then run again to the end."""
+    out = tmp_path / "proto"
+    cmd = [
+        *PVED,
+        "protocol",
+        "--pair",
+        "reacher",
+        "--budget",
+        "smoke",
+        "--methods",
+        "pved",
+        "ppo",
+        "--out",
+        str(out),
+        "--workers",
+        "2",
+    ]
+    t0 = time.monotonic()
+    proc = subprocess.Popen(
+        cmd,
+        env=_env(),
+        cwd=tmp_path,
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    transfers = out / "runs" / "reacher" / "transfer"
+    while time.monotonic() - t0 < 300 and not list(transfers.glob("*/seed*/result.json")):
+        assert proc.poll() is None, proc.stdout.read().decode() if proc.stdout else ""
+        time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished_before = {p.parent for p in transfers.glob("*/seed*/result.json")}
+    assert finished_before
+    assert not (out / "summary.json").exists()
+
+    done = subprocess.run(cmd, env=_env(), cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "summary.md" in done.stdout
+    assert "runs:" in done.stderr  # the live view
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failed"] == {} and summary["blocked"] == []
+    assert summary["reused"] >= len(finished_before)
+    methods = summary["pairs"]["reacher"]["methods"]
+    budget = get_budget("smoke")
+    for method in ("pved", "ppo"):
+        entry = methods[method]
+        assert entry["runs_finished"] == entry["runs_planned"] == len(budget.evaluation_seeds)
+        final = entry["final"]
+        assert final["mean_ci"][0] <= final["mean"] <= final["mean_ci"][1]
+        assert "steps_to_ppo_final" in entry
+    selection = json.loads((out / "selection.json").read_text())["reacher"]["pved"]
+    assert selection["beta"] in get_preset("reacher").beta_grid
+    assert len(selection["candidates"]) == budget.beta_grid_size + budget.model_inits - 1
+    for name in ("curves.png", "curves-reacher.png", "summary.md", "status.json"):
+        assert (out / name).stat().st_size > 0
+    assert "| pved |" in (out / "summary.md").read_text()
+    # finished runs are not redone: their results are untouched
+    for run_dir in finished_before:
+        assert (run_dir / "result.json").stat().st_mtime < (out / "summary.json").stat().st_mtime
+
+    # `pved plot` redraws from the run files alone
+    (out / "curves.png").unlink()
+    (out / "summary.json").unlink()
+    plotted = subprocess.run(
+        [*PVED, "plot", str(out), "--out", str(tmp_path / "all.png")],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert plotted.returncode == 0, plotted.stderr
+    assert (out / "curves.png").exists() and (tmp_path / "all.png").exists()
+    again = json.loads((out / "summary.json").read_text())
+    assert again["pairs"]["reacher"]["methods"]["pved"]["final"] == methods["pved"]["final"]
+
+    # the same directory with other settings is refused, in one line
+    other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
+    other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
+    assert other.returncode == 2
+    assert other.stderr.strip().count("\n") == 0 and "other settings" in other.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--pair", "nope"], "unknown pair"),
+        (["--pair", "reacher", "--methods", "pved", "magic"], "unknown model"),
+        (["--pair", "reacher", "--budget", "huge"], "unknown budget"),
+    ],
+)
+def test_protocol_bad_input_is_one_line(tmp_path: Path, args: list[str], message: str) -> None:
+    res = subprocess.run(
+        [*PVED, "protocol", *args, "--out", str(tmp_path / "o")],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert res.returncode == 2
+    assert res.stderr.startswith("pved: error:") and message in res.stderr
+    assert res.stderr.strip().count("\n") == 0
+    assert not (tmp_path / "o").exists()
+
+
+def test_plot_of_a_directory_that_is_no_protocol(tmp_path: Path) -> None:
+    res = subprocess.run([*PVED, "plot", str(tmp_path)], env=_env(), capture_output=True, text=True)
+    assert res.returncode == 2 and "not a protocol directory" in res.stderr
