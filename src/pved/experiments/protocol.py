@@ -38,7 +38,7 @@ import numpy as np
 from pved import __version__
 from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
 from pved.errors import PvedError
-from pved.experiments.runner import Job, RunnerReport, run_jobs
+from pved.experiments.runner import Job, RunnerReport, check_reachable, run_jobs
 from pved.experiments.stages import (
     NO_TRANSFER,
     REFERENCE_METHODS,
@@ -461,6 +461,8 @@ def run_protocol(
     A directory that already holds a protocol must hold the same one (pairs, methods,
     budget): its finished runs are reused and unfinished ones resumed."""
     plan = ProtocolPlan(pairs, methods, budget, Path(out))
+    if address:
+        check_reachable(address)  # before anything is written
     plan_path = plan.out / PLAN_FILE
     description = plan.describe()
     if plan_path.exists():

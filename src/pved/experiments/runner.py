@@ -216,10 +216,15 @@ def run_jobs(
             "runtime_env": {"env_vars": WORKER_ENV},
         }
         if address:
+            check_reachable(address)
             init["address"] = address
         else:
             init["num_cpus"] = workers or os.cpu_count() or 1
-        ray.init(**init)
+        try:
+            ray.init(**init)
+        except (ConnectionError, RuntimeError, ValueError) as err:
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            raise PvedError(f"cannot start or reach {where}: {_one_line(err)}") from None
     # max_retries=0: the retries are ours, so that each attempt's error can be recorded
     remote_call = ray.remote(num_cpus=1, max_retries=0)(_call)
 
@@ -325,11 +330,28 @@ def run_jobs(
     )
 
 
+def check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail fast on a ``host:port`` nobody listens on (Ray itself would retry for
+    minutes); other forms (``auto``, ``ray://...``) are left to Ray."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as err:
+        raise PvedError(f"no Ray cluster answers at {address} ({err})") from None
+
+
 def _one_line(err: BaseException) -> str:
     """The innermost error's message on one line (Ray wraps task errors)."""
     cause: BaseException = err
-    inner = getattr(err, "cause", None)
-    if isinstance(inner, BaseException):
+    while True:  # Ray's task errors carry .cause; connection errors chain __cause__
+        inner = getattr(cause, "cause", None) or cause.__cause__
+        if not isinstance(inner, BaseException) or inner is cause:
+            break
         cause = inner
     text = str(cause).strip().splitlines()
     # Ray's own message starts with the traceback; its last line is the actual error
