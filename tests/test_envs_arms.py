@@ -321,7 +321,9 @@ def test_hole_from_options_is_the_one_used() -> None:
         env = make_batched(env_id(agent, "Peg"), 2)
         _, info = env.reset(seed=1, options={"hole": hole})
         np.testing.assert_array_equal(info["hole"], np.tile(hole, (2, 1)))
-        np.testing.assert_allclose(info["hole_mid"][0], [*hole, TABLE_TOP_Z - HOLE_DEPTH / 2])
+        np.testing.assert_allclose(
+            info["hole_mid"][0], [*hole, TABLE_TOP_Z - HOLE_DEPTH + SUCCESS_DEPTH_TOL / 2]
+        )
         np.testing.assert_array_equal(env.datas[0].mocap_pos[0], [*hole, TABLE_TOP_Z])
 
 

@@ -258,7 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, help="env steps (default: the preset's)")
     p.add_argument("--reward", help="env reward variant, e.g. full")
-    p.add_argument("--eval-episodes", type=int, default=100, help="final evaluation episodes")
+    p.add_argument(
+        "--eval-episodes", type=int, help="episodes per evaluation (default: the preset's)"
+    )
     p.set_defaults(func=_cmd_train_policy)
 
     p = add("collect-pairs", "paired rollouts of both agents on the training task")

@@ -35,8 +35,10 @@ Tasks:
   0.025 m, depth ``HOLE_DEPTH`` = 0.06 m) is cut in the table top, built from box geoms so
   the peg (radius 0.012 m) collides with its walls and can jam. The hole's xy is drawn
   uniformly in ``HOLE_CENTER_XY`` +- ``HOLE_RANGE`` = (0.55, 0) +- 0.05 m (the table moves
-  with it). Terms: ``dist`` = -||tip - hole_mid|| with ``hole_mid`` the point in the middle of
-  the hole (0.03 m below the top surface), ``ctrl`` = -0.01 ||a||^2, and ``in_hole`` = +1 per
+  with it). Terms: ``dist`` = -||tip - hole_mid|| with ``hole_mid`` the point on the hole's
+  axis in the middle of its success zone (``HOLE_DEPTH - SUCCESS_DEPTH_TOL / 2`` = 0.05 m
+  below the top surface: with the point at half the depth, the reward's optimum lay above
+  the success zone and PPO learned to hover there), ``ctrl`` = -0.01 ||a||^2, and ``in_hole`` = +1 per
   step while the tip is inside the hole (xy within the opening, z below the table top).
   ``reward="full"`` sums ``dist`` + ``ctrl`` (the source's reward, default for Jaco),
   ``reward="restricted"`` only ``in_hole`` (the paper's sparse reward for the target
@@ -637,8 +639,9 @@ class ArmPegBatched(_ArmBatched):
 
     @property
     def hole_mid(self) -> np.ndarray:
-        """(N, 3) the point in the middle of each copy's hole (half its depth down)."""
-        z = np.full((self.num_envs, 1), TABLE_TOP_Z - 0.5 * HOLE_DEPTH)
+        """(N, 3) the reward's point in each copy's hole: on its axis, in the middle of
+        the success zone (the bottom ``SUCCESS_DEPTH_TOL`` of the hole)."""
+        z = np.full((self.num_envs, 1), TABLE_TOP_Z - HOLE_DEPTH + 0.5 * SUCCESS_DEPTH_TOL)
         return np.concatenate([self.hole, z], axis=1)
 
     @property

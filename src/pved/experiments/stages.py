@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,7 @@ from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import train_ppo
-from pved.runs import Run, atomic_write_json, run_path
+from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
@@ -107,10 +108,16 @@ def train_policy(
     steps: int | None = None,
     reward: str | None = None,
     runs_root: Path = DEFAULT_RUNS,
-    eval_episodes: int = 100,
+    eval_episodes: int | None = None,
     progress: bool = True,
 ) -> Path:
-    """PPO for any agent on any task (``pved train-policy``). Returns the policy file."""
+    """PPO for any agent on any task (``pved train-policy``). Returns the policy file.
+
+    Evaluated every ``eval_every`` steps of the pair's PPO config on ``eval_episodes``
+    (default: the preset's ``policy_eval_episodes``). With the preset's
+    ``policy_keep_best``, the policy of the evaluation point with the best mean return
+    (the end of training included) is the one saved, and ``result.json`` says which step
+    it came from; judge it on fresh episodes (``pved evaluate``), not on these."""
     preset = preset_for_agent(agent)
     name = env_id(agent, task)
     ppo = dataclasses.replace(preset.policy_config(agent, task), seed=seed)
@@ -124,19 +131,36 @@ def train_policy(
         return policy_file
     run.start()
     env = make_batched(name, ppo.num_envs, **env_kwargs)
-    eval_fn = _eval_fn(name, eval_episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
-    policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
-    final = eval_fn(policy, ppo.total_steps)
-    policy.save(
-        policy_file,
-        {
-            "env_id": name,
-            "env_kwargs": env_kwargs,
-            "seed": seed,
-            "steps": ppo.total_steps,
-            "pved_version": __version__,
-        },
-    )
+    episodes = preset.policy_eval_episodes if eval_episodes is None else eval_episodes
+    eval_fn = _eval_fn(name, episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
+    metadata = {
+        "env_id": name,
+        "env_kwargs": env_kwargs,
+        "seed": seed,
+        "steps": ppo.total_steps,
+        "pved_version": __version__,
+    }
+    best_file, best_stats = run.path / "best_policy.pt", run.path / "best_policy.json"
+
+    def evaluate_and_keep_best(policy: Policy, env_steps: int) -> dict[str, float]:
+        stats = eval_fn(policy, env_steps)
+        if preset.policy_keep_best and env_steps > 0:
+            # on disk, so that a resumed run still knows the best point before it
+            best = json.loads(best_stats.read_text()) if best_stats.exists() else None
+            if best is None or stats["eval/return_mean"] > best["eval/return_mean"]:
+                policy.save(best_file, {**metadata, "selected_step": env_steps})
+                atomic_write_json(best_stats, {"step": env_steps, **stats})
+        return stats
+
+    policy = train_ppo(env, ppo, run, eval_fn=evaluate_and_keep_best, progress=progress)
+    if preset.policy_keep_best and best_stats.exists():
+        best = json.loads(best_stats.read_text())
+        atomic_write_bytes(policy_file, best_file.read_bytes())
+        final = {k: v for k, v in best.items() if k.startswith("eval/")}
+        final["selected_step"] = best["step"]
+    else:
+        final = {k: v for k, v in run.read_metrics()[-1].items() if k.startswith("eval/")}
+        policy.save(policy_file, metadata)
     run.finish({"policy": str(policy_file), "env_id": name, "steps": ppo.total_steps, **final})
     return policy_file
 

@@ -43,7 +43,9 @@ def evaluate_policy(
             ``env.max_episode_steps``).
 
     Returns:
-        ``return_mean``, ``return_std``, ``length_mean``, ``episodes``, ``success_rate``
+        ``return_mean``, ``return_std``, ``length_mean``, ``completion_rate`` (the
+        fraction of episodes that ran to the time limit without terminating: for the
+        locomotion agents, without falling), ``episodes``, ``success_rate``
         (when the env reports ``is_success``) and ``<key>_mean`` for each info key.
     """
     if episodes <= 0:
@@ -56,6 +58,7 @@ def evaluate_policy(
     ep_len = np.zeros(n, dtype=np.int64)
     returns: list[float] = []
     lengths: list[int] = []
+    completed: list[bool] = []
     successes: list[float] = []
     extras: dict[str, list[float]] = {k: [] for k in info_keys}
     rng = np.random.default_rng(seed)
@@ -82,6 +85,7 @@ def evaluate_policy(
             idx = np.flatnonzero(counted)
             returns.extend(ep_ret[idx].tolist())
             lengths.extend(ep_len[idx].tolist())
+            completed.extend((~np.asarray(terminated, dtype=bool))[idx].tolist())
             if "is_success" in info:
                 successes.extend(np.asarray(info["is_success"], dtype=np.float64)[idx].tolist())
             for key in info_keys:
@@ -96,6 +100,7 @@ def evaluate_policy(
         "return_mean": float(np.mean(returns)),
         "return_std": float(np.std(returns)),
         "length_mean": float(np.mean(lengths)),
+        "completion_rate": float(np.mean(completed)),
         "episodes": float(len(returns)),
     }
     if successes:

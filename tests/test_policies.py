@@ -1,0 +1,49 @@
+"""``train_policy`` keeps the best evaluation point when the pair's preset asks for it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pved.config import get_preset
+from pved.experiments import stages
+from pved.rl.policy import load_policy
+
+
+def test_keep_best_saves_the_policy_of_the_best_evaluation(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    preset = get_preset("walker-hopper")
+    assert preset.policy_keep_best
+    ppo = dataclasses.replace(
+        preset.policy_config("Hopper", "Slope"),
+        num_envs=2,
+        steps_per_env=64,
+        minibatch_size=64,
+        eval_every=256,
+        checkpoint_every=0,
+    )
+    small = dataclasses.replace(preset, policy=ppo, policy_overrides=(), policy_eval_episodes=2)
+    monkeypatch.setattr(stages, "preset_for_agent", lambda agent: small)
+    # scripted evaluation: the return peaks at the second evaluation point (step 512)
+    scripted = {0: 1.0, 256: 5.0, 512: 9.0, 768: 3.0, 1024: 2.0}
+    seen: list[int] = []
+
+    def fake_eval_fn(*args: Any, **kwargs: Any):
+        def evaluate(policy: Any, env_steps: int) -> dict[str, float]:
+            seen.append(env_steps)
+            return {"eval/return_mean": scripted[env_steps], "eval/completion_rate": 1.0}
+
+        return evaluate
+
+    monkeypatch.setattr(stages, "_eval_fn", fake_eval_fn)
+    path = stages.train_policy("Hopper", "Slope", steps=1024, runs_root=tmp_path, progress=False)
+    assert seen == [0, 256, 512, 768, 1024]
+    result = json.loads((path.parent / "result.json").read_text())
+    assert result["selected_step"] == 512 and result["eval/return_mean"] == 9.0
+    assert path.read_bytes() == (path.parent / "best_policy.pt").read_bytes()
+    assert load_policy(path).metadata["selected_step"] == 512
