@@ -46,7 +46,12 @@ def ship(agent: str, task: str, seed: int, steps: int, runs_root: Path) -> dict[
     """Train (or reuse a finished run), evaluate and copy one policy into the package."""
     policy_file = train_policy(agent, task, seed=seed, steps=steps, runs_root=runs_root)
     name = env_id(agent, task)
-    stats = evaluate(policy_file, name, episodes=FINAL_EVAL_EPISODES, seed=FINAL_EVAL_SEED)
+    preset = preset_for_agent(agent)
+    # the pair's own measure: 500 episodes for success rates, 100 for the locomotion
+    # distance (paper IV.A), on seeds no training or selection has seen
+    episodes = min(FINAL_EVAL_EPISODES, preset.transfer.final_eval_episodes)
+    stats = evaluate(policy_file, name, episodes=episodes, seed=FINAL_EVAL_SEED)
+    training = json.loads((policy_file.parent / "result.json").read_text())
     stem = f"{agent.lower()}_{task.lower()}_seed{seed}"
     shutil.copyfile(policy_file, PRETRAINED_DIR / f"{stem}.pt")
     meta: dict[str, object] = {
@@ -55,8 +60,10 @@ def ship(agent: str, task: str, seed: int, steps: int, runs_root: Path) -> dict[
         "task": task,
         "seed": seed,
         "steps": steps,
+        # with the preset's policy_keep_best: the evaluation point that was kept
+        "selected_step": training.get("selected_step", steps),
         "command": f"pved train-policy --agent {agent} --task {task} --seed {seed} --steps {steps}",
-        "evaluation": {"episodes": FINAL_EVAL_EPISODES, "seed": FINAL_EVAL_SEED, **stats},
+        "evaluation": {"episodes": episodes, "seed": FINAL_EVAL_SEED, **stats},
         "sha256_16": file_digest(policy_file),
         "pved_version": __version__,
     }

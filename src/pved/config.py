@@ -222,7 +222,7 @@ def _arm_preset() -> PairPreset:
         shared_task_keys=("target",),
         bank_match_keys=("hole",),
         policy=ppo,
-        policy_overrides=(("Jaco", "Peg", dataclasses.replace(ppo, total_steps=2_000_000)),),
+        policy_overrides=(("Jaco", "Peg", dataclasses.replace(ppo, total_steps=1_000_000)),),
     )
 
 
