@@ -122,15 +122,29 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
+    from pved.errors import PvedError
+
+    if args.inputs:
+        from pved.analysis.pair_report import build_pair_report
+
+        # The runs-mode options would be silently ignored here; say so instead.
+        if args.seeds is not None or args.methods is not None:
+            raise PvedError("--seeds and --methods are for the report of runs, not with DIRs")
+        print(build_pair_report(args.pair, args.inputs, args.out))
+        return
     from pved.analysis.report import transfer_report
     from pved.config import get_preset
 
+    if args.seeds is None or args.out is None:
+        raise PvedError(
+            "report needs DIR... (the full pair report) or --seeds and --out (a report of runs)"
+        )
     preset = get_preset(args.pair)
     title = f"{preset.source_agent} -> {preset.target_agent} on {preset.target_task}"
     print(
         transfer_report(
             args.pair,
-            args.methods,
+            args.methods or ["pved", "ppo"],
             args.seeds,
             args.runs,
             args.out,
@@ -316,11 +330,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reward")
     p.set_defaults(func=_cmd_evaluate)
 
-    p = add("report", "learning curves and a results table for transfer runs")
+    p = add(
+        "report",
+        "learning curves and a results table for transfer runs; with DIRs, the full pair "
+        "report: one self-contained HTML file",
+    )
+    p.description = (
+        "Without DIR: learning curves, results.md/json and configs of the transfer runs "
+        "under --runs (needs --seeds and --out). With DIR...: the full report of --pair as "
+        "one HTML file with every image and video embedded, from the outputs of other "
+        "verbs: protocol directories, runs-mode report folders, `pved tsne --out` folders, "
+        "bound files (`pved bound ... > bound.txt`) and videos (.gif/.mp4/.webm, also "
+        "anywhere under a DIR). Give the DIRs together, before or after the options."
+    )
+    p.add_argument(
+        "inputs",
+        nargs="*",
+        type=Path,
+        metavar="DIR",
+        help="pved outputs of the pair (directories or files); gives the full pair report",
+    )
     p.add_argument("--pair", default="reacher")
-    p.add_argument("--methods", nargs="+", default=["pved", "ppo"])
-    p.add_argument("--seeds", nargs="+", type=int, required=True)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--methods", nargs="+", help="runs mode (default: pved ppo)")
+    p.add_argument("--seeds", nargs="+", type=int, help="runs mode: transfer seeds (required)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="runs mode: the report folder (required); with DIRs: the HTML file "
+        "(default: reports/<pair>-report.html)",
+    )
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser(

@@ -38,8 +38,9 @@ Tasks:
   with it). Terms: ``dist`` = -||tip - hole_mid|| with ``hole_mid`` the point on the hole's
   axis in the middle of its success zone (``HOLE_DEPTH - SUCCESS_DEPTH_TOL / 2`` = 0.05 m
   below the top surface: with the point at half the depth, the reward's optimum lay above
-  the success zone and PPO learned to hover there), ``ctrl`` = -0.01 ||a||^2, and ``in_hole`` = +1 per
-  step while the tip is inside the hole (xy within the opening, z below the table top).
+  the success zone and PPO learned to hover there), ``ctrl`` = -0.01 ||a||^2, and
+  ``in_hole`` = +1 per step while the tip is inside the hole (xy within the opening, z
+  below the table top).
   ``reward="full"`` sums ``dist`` + ``ctrl`` (the source's reward, default for Jaco),
   ``reward="restricted"`` only ``in_hole`` (the paper's sparse reward for the target
   agent, default for Fetch4); unused terms are reported as ``metric_<term>``.

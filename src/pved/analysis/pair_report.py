@@ -1,0 +1,589 @@
+"""One self-contained HTML report per agent pair (``pved report --pair PAIR DIR...``).
+
+The other verbs each write their own output: ``pved protocol`` a protocol directory,
+``pved report`` (runs mode) a transfer-report folder, ``pved tsne`` its figures and
+``numbers.json``, ``pved video`` GIFs or MP4s, ``pved bound`` a printed summary. This module
+gathers whichever of them are given into one HTML file that carries every image and video
+inside it as a base64 ``data:`` URI, so it can be mailed or attached to an issue as it is.
+
+Inputs are recognised by what they contain (see :func:`build_pair_report`); an input of
+another pair or one that is not a pved output raises :class:`PvedError` naming the file,
+before anything is written.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from html import escape
+from pathlib import Path
+from typing import Any
+
+from pved import __version__
+from pved.config import get_preset
+from pved.errors import PvedError
+from pved.runs import atomic_write_bytes
+
+VIDEO_SUFFIXES = (".gif", ".mp4", ".webm")
+# Keys a bound JSON must have: those of pved.analysis.bound.BoundResult the report shows.
+BOUND_KEYS = ("delta", "quantile", "a", "b", "m", "bound", "gap", "held")
+EXPECTED = (
+    "expected a protocol directory (protocol.json + summary.json), a transfer-report "
+    "directory (results.json), a t-SNE directory (numbers.json or tsne_shared.png), a bound "
+    "file (bound*.json / the line `pved bound` prints) or .gif/.mp4/.webm videos"
+)
+# MIME type and leading bytes of every embedded file: a truncated or mislabelled file is
+# refused with its name instead of becoming a broken picture in the report.
+_MEDIA: dict[str, tuple[str, tuple[tuple[int, bytes], ...]]] = {
+    ".png": ("image/png", ((0, b"\x89PNG\r\n\x1a\n"),)),
+    ".gif": ("image/gif", ((0, b"GIF87a"), (0, b"GIF89a"))),
+    ".mp4": ("video/mp4", ((4, b"ftyp"),)),
+    ".webm": ("video/webm", ((0, b"\x1a\x45\xdf\xa3"),)),
+}
+# The line ``pved bound`` prints (BoundResult.summary), for bound files saved with
+# ``pved bound ... > bound.txt``; the verb writes no JSON of its own.
+_NUM = r"[-+]?(?:inf|nan|\d+(?:\.\d*)?(?:e[-+]?\d+)?)"
+_BOUND_LINE = re.compile(
+    rf"Theorem 1: delta\(q(?P<quantile>{_NUM})\)=(?P<delta>{_NUM}) "
+    rf"\(KL max (?P<kl_max>{_NUM})\), \[a,b\]=\[(?P<a>{_NUM}),(?P<b>{_NUM})\], "
+    rf"m=(?P<m>{_NUM}) -> bound (?P<bound>{_NUM}) vs gap (?P<gap>{_NUM}) "
+    rf"\((?P<held>held|VIOLATED)\); Corollary 1 \(gamma=(?P<gamma>{_NUM})\): "
+    rf"bound (?P<return_bound>{_NUM}) "
+    rf"\(finite n=(?P<horizon>\d+): (?P<return_bound_finite>{_NUM})\) "
+    rf"vs return gap (?P<return_gap>{_NUM}) \((?P<return_held>held|VIOLATED)\)"
+)
+# Sets data-images-loaded / data-images-total on <body> once the page has loaded, so a
+# headless browser (``chromium --dump-dom``) can check that every embedded image decodes.
+_IMAGE_CHECK = (
+    "window.addEventListener('load', function () {"
+    " var imgs = document.images, ok = 0;"
+    " for (var i = 0; i < imgs.length; i++) {"
+    " if (imgs[i].complete && imgs[i].naturalWidth > 0) { ok++; } }"
+    " document.body.dataset.imagesLoaded = String(ok);"
+    " document.body.dataset.imagesTotal = String(imgs.length); });"
+)
+# Everything must come from the page itself: the browser refuses any other source.
+_CSP = (
+    "default-src 'none'; img-src data:; media-src data:; "
+    "style-src 'unsafe-inline'; script-src 'unsafe-inline'"
+)
+_CSS = """
+body { font-family: sans-serif; max-width: 70em; margin: 2em auto; padding: 0 1em;
+       color: #222; line-height: 1.4; }
+h1 { margin-bottom: 0.2em; }
+table { border-collapse: collapse; margin: 0.8em 0; }
+th, td { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: left; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+figure { display: inline-block; margin: 0.5em 1em 0.5em 0; vertical-align: top; }
+figure img, figure video { max-width: 100%; border: 1px solid #ddd; }
+figcaption, .note { color: #555; font-size: 0.9em; }
+.missing { background: #fff6d5; padding: 0.5em; border-left: 4px solid #e0b000; }
+"""
+
+
+@dataclass
+class _Parts:
+    """What the inputs gave, section by section, in input order."""
+
+    inputs: list[str] = field(default_factory=list)
+    curves: list[tuple[str, Path]] = field(default_factory=list)  # (caption, PNG)
+    tables: list[str] = field(default_factory=list)  # rendered HTML
+    tsne: list[tuple[str, Path]] = field(default_factory=list)  # (caption, PNG)
+    numbers: list[tuple[Path, dict[str, Any]]] = field(default_factory=list)
+    bounds: list[tuple[Path, dict[str, Any], bool]] = field(default_factory=list)  # parsed?
+    videos: list[tuple[str, Path]] = field(default_factory=list)  # (caption, file)
+
+
+# ---------------------------------------------------------------------- small helpers
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise PvedError(f"{path} is not readable JSON ({type(err).__name__})") from None
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    """A table cell: fixed decimals for floats, '–' for missing or NaN."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def _sig(value: Any) -> str:
+    """Four significant digits (the bound's quantities span many magnitudes)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return _fmt(value)
+    return f"{value:.4g}"
+
+
+def _with_ci(mean: Any, ci: Any, digits: int = 3) -> str:
+    """``mean [lo, hi]`` for a bootstrap interval; ``mean ± h`` for the half-widths that
+    transfer reports written before the bootstrap (e.g. reports/reacher-1m) hold."""
+    if mean is None:
+        return "–"
+    if isinstance(ci, list | tuple) and len(ci) == 2:
+        return f"{_fmt(mean, digits)} [{_fmt(ci[0], digits)}, {_fmt(ci[1], digits)}]"
+    if isinstance(ci, int | float):
+        return f"{_fmt(mean, digits)} ± {_fmt(float(ci), digits)}"
+    return _fmt(mean, digits)
+
+
+def _table(
+    header: Sequence[str], rows: Sequence[Sequence[str]], text_columns: Sequence[int] = (0,)
+) -> str:
+    """An HTML table of already formatted cells (escaped here); all columns but
+    ``text_columns`` hold numbers and are right-aligned."""
+    head = "".join(f"<th>{escape(h)}</th>" for h in header)
+    body = []
+    for row in rows:
+        cells = "".join(
+            f"<td>{escape(c)}</td>" if i in text_columns else f'<td class="num">{escape(c)}</td>'
+            for i, c in enumerate(row)
+        )
+        body.append(f"<tr>{cells}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _data_uri(path: Path) -> tuple[str, str]:
+    """``(mime, data URI)`` of a PNG/GIF/MP4/WebM file, after checking its leading bytes."""
+    suffix = path.suffix.lower()
+    if suffix not in _MEDIA:
+        raise PvedError(f"{path}: cannot embed {suffix or 'a file without suffix'}")
+    mime, signatures = _MEDIA[suffix]
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise PvedError(f"cannot read {path} ({err.strerror})") from None
+    if not any(data[off : off + len(sig)] == sig for off, sig in signatures):
+        raise PvedError(f"{path} is not a valid {suffix[1:].upper()} file")
+    return mime, f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _figure(path: Path, caption: str) -> str:
+    mime, uri = _data_uri(path)
+    if mime.startswith("video/"):
+        media = f'<video controls preload="metadata" src="{uri}"></video>'
+    else:
+        media = f'<img src="{uri}" alt="{escape(caption, quote=True)}">'
+    return f"<figure>{media}<figcaption>{escape(caption)}</figcaption></figure>"
+
+
+# ----------------------------------------------------------------------- recognisers
+def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
+    """A ``pved protocol`` output: curves-<pair>.png and the summary.json table."""
+    plan_file = directory / "protocol.json"
+    plan = _read_json(plan_file)
+    pairs = plan.get("pairs") if isinstance(plan, dict) else None
+    if not isinstance(pairs, list):
+        raise PvedError(f"{plan_file} is not a pved protocol plan (no list of pairs)")
+    if pair not in pairs:
+        raise PvedError(f"{plan_file} is for pair(s) {', '.join(map(str, pairs))}, not {pair!r}")
+    summary_file = directory / "summary.json"
+    if not summary_file.is_file():
+        raise PvedError(f"{directory} has no summary.json yet; `pved plot {directory}` writes it")
+    summary = _read_json(summary_file)
+    try:
+        info = summary["pairs"][pair]
+        metric, methods = info["metric"], info["methods"]
+    except (KeyError, TypeError):
+        raise PvedError(f"{summary_file} has no results for pair {pair!r}") from None
+    parts.inputs.append(f"protocol: {directory}")
+    curves = directory / f"curves-{pair}.png"
+    if not curves.is_file() and pairs == [pair]:  # older protocol dirs: one combined figure
+        curves = directory / "curves.png"
+    if curves.is_file():
+        what = metric.replace("_", " ")
+        parts.curves.append((f"protocol {directory.name}: {what} per method", curves))
+    rows = []
+    for method, m in methods.items():
+        final = m.get("final") or {}
+        reach = m.get("steps_to_ppo_final")
+        rows.append(
+            [
+                str(method),
+                f"{m.get('runs_finished', '–')}/{m.get('runs_planned', '–')}",
+                _with_ci(final.get("mean"), final.get("mean_ci")),
+                _with_ci(final.get("iqm"), final.get("iqm_ci")),
+                "not reached" if "ppo_final" in m and reach is None else _fmt(reach),
+                _sig(m.get("beta")),
+                _fmt(m.get("init")),
+            ]
+        )
+    budget, label = summary.get("budget", "?"), metric.replace("_", " ")
+    notes = [
+        f"Protocol {directory} ({budget} budget): final {label} over the evaluation runs, "
+        "mean and interquartile mean (IQM) with 95% stratified-bootstrap CIs (rliable); "
+        "'steps to PPO's final' is the env steps a method's mean curve needs to reach plain "
+        "PPO's final value."
+    ]
+    failed, blocked = len(summary.get("failed") or {}), len(summary.get("blocked") or [])
+    if failed or blocked:
+        notes.append(f"{failed} runs failed and {blocked} were blocked (see {summary_file}).")
+    header = ["method", "runs", f"final {label}: mean [95% CI]", "IQM [95% CI]"]
+    header += ["steps to PPO's final", "β", "init"]
+    parts.tables.append(f'<p class="note">{escape(" ".join(notes))}</p>' + _table(header, rows))
+
+
+def _add_transfer_report(pair: str, directory: Path, parts: _Parts) -> None:
+    """A runs-mode ``pved report`` folder: curves_*.png and the results.json table."""
+    results_file = directory / "results.json"
+    results = _read_json(results_file)
+    if not isinstance(results, dict) or not isinstance(results.get("rows"), list):
+        raise PvedError(f"{results_file} is not a pved transfer report (no rows)")
+    if "pair" in results and results["pair"] != pair:
+        raise PvedError(f"{results_file} is for pair {results['pair']!r}, not {pair!r}")
+    metric = str(results.get("metric", "success_rate"))
+    label = metric.replace("_", " ")
+    parts.inputs.append(f"transfer report: {directory}")
+    pngs = sorted(directory.glob("curves_*.png"), key=lambda p: (p.stem != f"curves_{metric}", p))
+    for png in pngs:
+        what = png.stem.removeprefix("curves_").replace("_", " ")
+        parts.curves.append((f"transfer report {directory.name}: {what}", png))
+    has_iqm = any("final_iqm" in r for r in results["rows"] if isinstance(r, dict))
+    rows = []
+    for r in results["rows"]:
+        if not isinstance(r, dict) or "method" not in r:
+            raise PvedError(f"{results_file} has a row without a method")
+        per_seed = r.get(f"final_{metric}") or []
+        row = [
+            str(r["method"]),
+            _fmt(len(r.get("seeds") or per_seed)),
+            _fmt(r.get("steps")),
+            _with_ci(r.get("final_mean"), r.get("final_ci95")),
+        ]
+        if has_iqm:
+            row.append(_with_ci(r.get("final_iqm"), r.get("final_iqm_ci95")))
+        row += [
+            " ".join(_fmt(float(v), 2) for v in per_seed),  # non-numbers: caught in _collect
+            _with_ci(r.get("curve_mean"), r.get("curve_ci95")),
+            _with_ci(r.get("final_return_mean"), r.get("final_return_ci95"), 2),
+        ]
+        rows.append(row)
+    header = ["method", "seeds", "env steps", f"final {label}: mean [95% CI]"]
+    header += ["IQM [95% CI]"] if has_iqm else []
+    header += ["per seed", "curve mean [95% CI]", "final return: mean [95% CI]"]
+    ci = results.get("ci95", "± is the 95% t-interval over seeds (report before the bootstrap)")
+    note = (
+        f"Transfer report {directory}: final {label} on fresh episodes after training; "
+        f"'curve mean' is the mean of the evaluation points along training. CI: {ci}."
+    )
+    parts.tables.append(f'<p class="note">{escape(note)}</p>' + _table(header, rows))
+
+
+def _add_tsne(directory: Path, parts: _Parts) -> None:
+    """A ``pved tsne --out`` folder: the scatters, the mark strips and numbers.json."""
+    parts.inputs.append(f"t-SNE: {directory}")
+    for name, what in (("tsne_shared", "shared"), ("tsne_individual", "individual")):
+        png = directory / f"{name}.png"
+        if png.is_file():
+            parts.tsne.append((f"t-SNE of the {what} subspace", png))
+    marks: list[tuple[int, Path]] = []
+    for png in directory.glob("mark_*.png"):
+        index = png.stem.removeprefix("mark_")
+        if index.isdigit():  # numeric order: mark_10 after mark_9
+            marks.append((int(index), png))
+    for j, png in sorted(marks):
+        parts.tsne.append((f"mark ({j}): nearest source (top) and target (bottom) frames", png))
+    numbers_file = directory / "numbers.json"
+    if numbers_file.is_file():
+        numbers = _read_json(numbers_file)
+        if not isinstance(numbers, dict) or "shared" not in numbers:
+            raise PvedError(f"{numbers_file} is not pved tsne numbers (no 'shared' entry)")
+        parts.numbers.append((numbers_file, numbers))
+
+
+def _parse_bound(path: Path, pair: str) -> tuple[dict[str, Any], bool] | None:
+    """A bound from ``path``: a JSON object with :data:`BOUND_KEYS` (``stages.bound``'s
+    return value or ``BoundResult.as_dict()``), or text holding the line ``pved bound``
+    prints. Returns ``(values, parsed_from_text)``, or None when it is neither."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError:
+        obj = None
+    if isinstance(obj, dict) and all(k in obj for k in BOUND_KEYS):
+        if "pair" in obj and obj["pair"] != pair:
+            raise PvedError(f"{path} is for pair {obj['pair']!r}, not {pair!r}")
+        return obj, False
+    match = _BOUND_LINE.search(text)
+    if match is None:
+        return None
+    flags, ints = ("held", "return_held"), ("horizon",)
+    values: dict[str, Any] = {
+        k: v == "held" if k in flags else int(v) if k in ints else float(v)
+        for k, v in match.groupdict().items()
+    }
+    return values, True
+
+
+def _add_bound_file(pair: str, path: Path, parts: _Parts) -> bool:
+    parsed = _parse_bound(path, pair)
+    if parsed is None:
+        return False
+    parts.inputs.append(f"bound: {path}")
+    parts.bounds.append((path, *parsed))
+    return True
+
+
+def _add_video(path: Path, caption: str, parts: _Parts) -> None:
+    _data_uri(path)  # refuse a broken file now, before anything is written
+    parts.videos.append((caption, path))
+
+
+def _collect(pair: str, inputs: Sequence[Path]) -> _Parts:
+    parts = _Parts()
+    for raw in inputs:
+        path = Path(raw)
+        if not path.exists():
+            raise PvedError(f"{path} does not exist")
+        try:
+            if path.is_dir():
+                _collect_dir(pair, path, parts)
+            else:
+                _collect_file(pair, path, parts)
+        except (AttributeError, KeyError, TypeError, ValueError) as err:
+            # A file of the right name whose values have the wrong types (hand-edited,
+            # another tool's): one line naming the input instead of a traceback.
+            what = " ".join(str(err).split())
+            raise PvedError(
+                f"{path} is not a readable pved output ({type(err).__name__}: {what})"
+            ) from None
+    return parts
+
+
+def _collect_dir(pair: str, directory: Path, parts: _Parts) -> None:
+    """Every kind of output found in ``directory`` (one folder may hold several)."""
+    found = False
+    if (directory / "protocol.json").is_file():
+        _add_protocol(pair, directory, parts)
+        found = True
+    if (directory / "results.json").is_file():
+        _add_transfer_report(pair, directory, parts)
+        found = True
+    if (directory / "numbers.json").is_file() or (directory / "tsne_shared.png").is_file():
+        _add_tsne(directory, parts)
+        found = True
+    for candidate in sorted(directory.glob("bound*")):
+        if candidate.is_file() and candidate.suffix.lower() in (".json", ".txt"):
+            if not _add_bound_file(pair, candidate, parts):
+                raise PvedError(f"{candidate} is not a pved bound ({EXPECTED})")
+            found = True
+    videos = sorted(
+        p for p in directory.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES and p.is_file()
+    )
+    for video in videos:
+        _add_video(video, str(video.relative_to(directory)), parts)
+    if videos:
+        parts.inputs.append(f"videos: {len(videos)} under {directory}")
+        found = True
+    if not found:
+        raise PvedError(f"{directory} is not a pved output ({EXPECTED})")
+
+
+def _collect_file(pair: str, path: Path, parts: _Parts) -> None:
+    """A single file: a video, a bound, or one of the directories' index files."""
+    if path.suffix.lower() in VIDEO_SUFFIXES:
+        _add_video(path, path.name, parts)
+        parts.inputs.append(f"video: {path}")
+    elif path.name in ("protocol.json", "summary.json", "selection.json"):
+        _add_protocol(pair, path.parent, parts)
+    elif path.name == "results.json":
+        _add_transfer_report(pair, path.parent, parts)
+    elif path.name == "numbers.json":
+        _add_tsne(path.parent, parts)
+    elif not _add_bound_file(pair, path, parts):
+        raise PvedError(f"{path} is not a pved output ({EXPECTED})")
+
+
+# ------------------------------------------------------------------------- rendering
+def _numbers_section(path: Path, numbers: Mapping[str, Any]) -> str:
+    """The correspondence and probe numbers of one numbers.json, one explained row each."""
+    chance = numbers.get("chance_time_difference")
+    rows: list[list[str]] = []
+    for space, want in (("shared", "small"), ("individual", "near chance")):
+        sub = numbers.get(space)
+        if not isinstance(sub, dict):
+            continue
+        rows.append(
+            [
+                f"{space}: time correspondence |Δt|",
+                _fmt(sub.get("nn_time_difference")),
+                f"mean normalised-time gap between a target step and its nearest source step "
+                f"in the {space} subspace ({want} is expected; chance {_fmt(chance)})",
+            ]
+        )
+    rows.append(
+        [
+            "chance |Δt|",
+            _fmt(chance),
+            "the gap an uninformative nearest neighbour gives (1/3 for uniform times)",
+        ]
+    )
+    for space, want in (("shared", "≈0.5: the agents overlap"), ("individual", "≈1: separated")):
+        sub = numbers.get(space)
+        if not isinstance(sub, dict):
+            continue
+        rows.append(
+            [
+                f"{space}: agent-probe accuracy",
+                _fmt(sub.get("agent_probe_accuracy")),
+                f"held-out balanced accuracy of a linear probe for agent identity on the "
+                f"{space} posterior means ({want} is expected)",
+            ]
+        )
+    points = numbers.get("num_points") or {}
+    success = numbers.get("success_rate") or {}
+    note = (
+        f"From {path}: {numbers.get('episodes', '?')} episodes per agent, "
+        f"{points.get('source', '?')} source and {points.get('target', '?')} target steps; "
+        f"success rate source {_fmt(success.get('source'))}, "
+        f"target {_fmt(success.get('target'))}."
+    )
+    table = _table(["number", "value", "what it says"], rows, text_columns=(0, 2))
+    return f'<p class="note">{escape(note)}</p>{table}'
+
+
+def _bound_section(path: Path, b: Mapping[str, Any], from_text: bool) -> str:
+    """Theorem 1 (and Corollary 1 where given) beside the measured gaps."""
+    rows = [
+        [f"δ (KL quantile q={_sig(b['quantile'])})", _sig(b["delta"])],
+        ["KL max", _sig(b.get("kl_max"))],
+        ["reward range [a, b]", f"[{_sig(b['a'])}, {_sig(b['b'])}]"],
+        ["m = max |r_T − r_S|", _sig(b["m"])],
+        ["bound m + (b − a)/2 · √(2δ) (Eq. 13)", _sig(b["bound"])],
+        ["measured gap |mean r_T − mean r_S|", _sig(b["gap"])],
+        ["held", _fmt(bool(b["held"]))],
+    ]
+    if "return_bound" in b:
+        rows += [
+            [f"Corollary 1, γ={_sig(b.get('gamma'))}: return bound (Eq. 14)",
+             _sig(b["return_bound"])],
+            [f"finite horizon n={_fmt(b.get('horizon'))} (Eq. 26)",
+             _sig(b.get("return_bound_finite"))],
+            ["measured return gap", _sig(b.get("return_gap"))],
+            ["return bound held (finite n)", _fmt(b.get("return_held"))],
+        ]  # fmt: skip
+    source = f"From {path}" + (
+        " (the line `pved bound` prints: 4 significant digits)." if from_text else "."
+    )
+    if "episodes" in b:
+        source += f" {b['episodes']} episodes per agent, {b.get('matched_pairs', '?')} pairs."
+    return f'<p class="note">{escape(source)}</p>' + _table(["quantity", "value"], rows)
+
+
+# (attribute of _Parts, section name, the input that gives it) for the "not given" line
+_SECTIONS = (
+    ("curves", "learning curves", "a protocol or transfer-report directory"),
+    ("tables", "results table", "a protocol or transfer-report directory"),
+    ("tsne", "t-SNE figures", "a `pved tsne --out` directory"),
+    ("numbers", "correspondence and probe numbers", "its numbers.json"),
+    ("bounds", "bound", "the line `pved bound` prints, saved to a file"),
+    ("videos", "videos", "`pved video` files"),
+)
+
+
+def _render(pair: str, parts: _Parts) -> str:
+    preset = get_preset(pair)
+    title = f"pved report: {pair}"
+    out = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f'<meta http-equiv="Content-Security-Policy" content="{_CSP}">',
+        f"<title>{escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
+        "<p>"
+        + escape(
+            f"{preset.source_agent} → {preset.target_agent}: trained on {preset.training_task}, "
+            f"transferred to the target task {preset.target_task} "
+            f"(metric: {preset.metric.replace('_', ' ')}). pved {__version__}."
+        )
+        + "</p>",
+        "<ul>" + "".join(f"<li>{escape(i)}</li>" for i in parts.inputs) + "</ul>",
+    ]
+    missing = [f"{name} (from {hint})" for key, name, hint in _SECTIONS if not getattr(parts, key)]
+    if missing:
+        out.append(f'<p class="missing">{escape("Not given: " + "; ".join(missing) + ".")}</p>')
+    if parts.curves:
+        out.append("<h2>Learning curves</h2>")
+        out += [_figure(png, caption) for caption, png in parts.curves]
+    if parts.tables:
+        out.append("<h2>Results</h2>")
+        out += parts.tables
+    if parts.tsne:
+        out.append("<h2>t-SNE of the subspaces, with the nearest frames</h2>")
+        out += [_figure(png, caption) for caption, png in parts.tsne]
+    if parts.numbers:
+        out.append("<h2>Time correspondence and agent probes</h2>")
+        out += [_numbers_section(path, numbers) for path, numbers in parts.numbers]
+    if parts.bounds:
+        out.append("<h2>Theorem 1 bound against the measured gap</h2>")
+        out += [_bound_section(path, b, from_text) for path, b, from_text in parts.bounds]
+    if parts.videos:
+        out.append("<h2>Videos</h2>")
+        out += [_figure(video, caption) for caption, video in parts.videos]
+    out += [f"<script>{_IMAGE_CHECK}</script>", "</body></html>", ""]
+    return "\n".join(out)
+
+
+def default_report_path(pair: str) -> Path:
+    """``reports/<pair>-report.html`` (relative to the working directory)."""
+    return Path("reports") / f"{pair}-report.html"
+
+
+def build_pair_report(pair: str, inputs: Sequence[Path], out: Path | None = None) -> Path:
+    """Write one self-contained HTML report of ``pair`` from other verbs' outputs.
+
+    Each input is recognised by what it contains (a directory may hold several kinds):
+
+    * protocol directory (``pved protocol``): ``protocol.json`` listing ``pair``, its
+      ``summary.json`` (table: mean and IQM with CIs, steps to PPO's final, β, init) and
+      ``curves-<pair>.png``;
+    * transfer-report directory (``pved report`` without DIRs): ``results.json`` (table)
+      and ``curves_*.png``;
+    * t-SNE directory (``pved tsne --out``): ``numbers.json`` and/or ``tsne_shared.png``,
+      ``tsne_individual.png``, ``mark_<j>.png``;
+    * bound: a file (or ``bound*.json`` / ``bound*.txt`` in a directory) holding a JSON
+      object with the :class:`pved.analysis.bound.BoundResult` fields, or the line
+      ``pved bound`` prints;
+    * videos: ``.gif``/``.mp4``/``.webm`` files, given or anywhere under a given directory.
+
+    Sections come in the order title, learning curves, results, t-SNE figures, numbers,
+    bound, videos; sections no input gave are listed as not given. Every image and video
+    is embedded as a base64 ``data:`` URI; the page loads nothing else.
+
+    Args:
+        pair: a preset name (``pved list``).
+        inputs: the outputs, in the order their items should appear.
+        out: the HTML file (default ``reports/<pair>-report.html``); written atomically.
+
+    Returns:
+        ``out``.
+
+    Raises:
+        PvedError: an input that does not exist, is not a pved output, belongs to another
+            pair (``protocol.json`` pairs, ``results.json`` pair) or is corrupt; nothing
+            is written then.
+    """
+    get_preset(pair)  # an unknown pair fails first, with the known ones
+    if not inputs:
+        raise PvedError("a pair report needs at least one input directory or file")
+    parts = _collect(pair, inputs)
+    page = _render(pair, parts)
+    path = default_report_path(pair) if out is None else Path(out)
+    if path.is_dir():
+        path = path / f"{pair}-report.html"
+    atomic_write_bytes(path, page.encode("utf-8"))
+    return path
