@@ -193,3 +193,14 @@ def test_render_rollout_frame_count(tmp_path: Path) -> None:
     )
     frames = iio.imread(both, index=None)
     assert frames.shape[0] == 7 and frames.shape[2] == 48 * 2 + 4
+
+
+def test_render_rollout_to_mp4(tmp_path: Path) -> None:
+    import imageio.v3 as iio
+
+    push = pretrained_policy_path("Reacher3", "Push")
+    path = render_rollout(push, SOURCE_ENV, tmp_path / "one.mp4", seed=0, max_steps=9,
+                          width=64, height=48)  # fmt: skip
+    frames = iio.imread(path, index=None)
+    assert frames.shape[0] == 10 and frames.shape[1:3] == (48, 64)
+    assert not list(tmp_path.glob(".*tmp*"))

@@ -1,7 +1,7 @@
 """Offscreen videos of policy rollouts (the qualitative counterpart of paper IV.B/IV.C).
 
-GIFs are written with Pillow (a matplotlib dependency, so always present); ``.mp4`` needs
-``imageio`` with an ffmpeg plugin and is used only when asked for by the file suffix.
+GIFs are written with Pillow; ``.mp4`` with imageio and the ffmpeg of imageio-ffmpeg (both
+dependencies of pved); the file suffix chooses.
 """
 
 from __future__ import annotations
