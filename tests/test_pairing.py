@@ -42,6 +42,16 @@ def test_time_alignment_pairs_steps_at_the_same_moment() -> None:
     i_s, i_t = time_indices(7, 5, 0.02, 0.02)
     assert i_s.tolist() == i_t.tolist() == [0, 1, 2, 3, 4]
     assert align("time", 10, 10, 0.015, 0.05)[1].tolist() == [0, 1, 2]
+    # 7 Humanoid steps end at 0.105 s: Ant's step at 0.1 s would need Humanoid step 7,
+    # which never happened, so it is not paired (clamping to step 6 would be 0.01 s off)
+    i_s, i_t = time_indices(7, 3, 0.015, 0.05)
+    assert i_t.tolist() == [0, 1] and i_s.tolist() == [0, 3]
+    # every pair, for any lengths, is at most half the finer period apart
+    for length_source in range(1, 80):
+        for length_target in range(1, 30):
+            i_s, i_t = time_indices(length_source, length_target, 0.015, 0.05)
+            assert len(i_s) >= 1
+            assert np.abs(i_s * 0.015 - i_t * 0.05).max() <= 0.0075 + 1e-12
     with pytest.raises(PvedError, match="control periods"):
         align("time", 10, 10)
 

@@ -68,7 +68,10 @@ def time_indices(
         coarse = np.arange(len_coarse, dtype=np.int64)
         coarse = coarse[coarse * dt_coarse < duration * (1.0 - 1e-9)]
         fine = np.rint(coarse * dt_coarse / dt_fine).astype(np.int64)
-        return coarse, np.minimum(fine, len_fine - 1)
+        # a coarse step near the end of the shorter episode may round to a fine step
+        # just past it: drop it rather than pair it with a step further away in time
+        keep = fine <= len_fine - 1
+        return coarse[keep], fine[keep]
 
     if dt_source >= dt_target:
         return pair(dt_source, length_source, dt_target, length_target)
