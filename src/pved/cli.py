@@ -206,6 +206,8 @@ def _cmd_tsne(args: argparse.Namespace) -> None:
         episodes=args.episodes,
         marks=args.marks,
         seed=args.seed,
+        target_later_frames=args.later_frames,
+        later_frame_stride=args.later_frame_stride,
     )
     _print_json(result["numbers"])
     print(f"figures: {Path(args.out).resolve()}")
@@ -375,6 +377,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source-policy", type=Path, help="default: the shipped target-task one")
     p.add_argument("--episodes", type=int, default=6)
     p.add_argument("--marks", type=int, default=4, help="marked positions with their frames")
+    p.add_argument(
+        "--later-frames",
+        type=int,
+        metavar="N",
+        help="later target frames per mark, as the paper shows for Ant "
+        "(default: 2 when the target agent is Ant, else 0)",
+    )
+    p.add_argument(
+        "--later-frame-stride",
+        type=int,
+        metavar="STEPS",
+        help="control steps between the later frames (default: 5)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=_cmd_tsne)

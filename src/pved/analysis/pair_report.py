@@ -281,8 +281,15 @@ def _add_transfer_report(pair: str, directory: Path, parts: _Parts) -> None:
 
 
 def _add_tsne(directory: Path, parts: _Parts) -> None:
-    """A ``pved tsne --out`` folder: the scatters, the mark strips and numbers.json."""
+    """A ``pved tsne --out`` folder: the scatters, the mark strips, the x split
+    (``fig8_groups.png``, paper Fig. 8) and numbers.json."""
     parts.inputs.append(f"t-SNE: {directory}")
+    numbers_file = directory / "numbers.json"
+    numbers: Any = None
+    if numbers_file.is_file():
+        numbers = _read_json(numbers_file)
+        if not isinstance(numbers, dict) or "shared" not in numbers:
+            raise PvedError(f"{numbers_file} is not pved tsne numbers (no 'shared' entry)")
     for name, what in (("tsne_shared", "shared"), ("tsne_individual", "individual")):
         png = directory / f"{name}.png"
         if png.is_file():
@@ -292,13 +299,30 @@ def _add_tsne(directory: Path, parts: _Parts) -> None:
         index = png.stem.removeprefix("mark_")
         if index.isdigit():  # numeric order: mark_10 after mark_9
             marks.append((int(index), png))
+    # Strips with later target frames (the paper's Ant, Fig. 7) say so in their caption.
+    frames = (numbers or {}).get("mark_frames") or {}
+    later, stride = frames.get("target_later_frames", 0), frames.get("later_frame_stride")
+    rows = "nearest source (top) and target (bottom) frames"
+    if isinstance(later, int) and later > 0:
+        rows = (
+            f"nearest source (top) and target (second) frames, then {later} later target "
+            f"frames {stride} steps apart"
+        )
     for j, png in sorted(marks):
-        parts.tsne.append((f"mark ({j}): nearest source (top) and target (bottom) frames", png))
-    numbers_file = directory / "numbers.json"
-    if numbers_file.is_file():
-        numbers = _read_json(numbers_file)
-        if not isinstance(numbers, dict) or "shared" not in numbers:
-            raise PvedError(f"{numbers_file} is not pved tsne numbers (no 'shared' entry)")
+        parts.tsne.append((f"mark ({j}): {rows}", png))
+    fig8 = directory / "fig8_groups.png"
+    if fig8.is_file():
+        split = (numbers or {}).get("x_split") or {}
+        at = split.get("threshold_m")
+        where = f"x = {_fmt(at, 1)} m" if isinstance(at, (int, float)) else "the x threshold"
+        parts.tsne.append(
+            (
+                f"Fig. 8: the target's shared-embedding points in k-means groups, counted "
+                f"before and after {where}",
+                fig8,
+            )
+        )
+    if numbers is not None:
         parts.numbers.append((numbers_file, numbers))
 
 
@@ -442,6 +466,32 @@ def _numbers_section(path: Path, numbers: Mapping[str, Any]) -> str:
                 _fmt(sub.get("agent_probe_accuracy")),
                 f"held-out balanced accuracy of a linear probe for agent identity on the "
                 f"{space} posterior means ({want} is expected)",
+            ]
+        )
+    split = numbers.get("x_split")
+    if isinstance(split, dict) and isinstance(split.get("groups"), list):
+        at = _fmt(split.get("threshold_m"), 1)
+        for g, group in enumerate(split["groups"], start=1):
+            if not isinstance(group, dict):
+                continue
+            near = group.get("nearest_mark")
+            where = f" (nearest mark ({near}))" if near is not None else ""
+            rows.append(
+                [
+                    f"x split: group G{g}{where} after {at} m",
+                    _fmt(group.get("frac_after")),
+                    f"fraction of the {group.get('size', '?')} target points of this k-means "
+                    f"group of the shared embedding with x ≥ {at} m ({group.get('before', '?')} "
+                    f"before, {group.get('after', '?')} after; Fig. 8)",
+                ]
+            )
+        rows.append(
+            [
+                "x split: range of the fractions",
+                _fmt(split.get("frac_after_range")),
+                "largest minus smallest fraction after: ≈1 when the groups are the terrain "
+                "before and after the threshold (the paper's reading for Ant), ≈0 when "
+                "the grouping is unrelated to x",
             ]
         )
     points = numbers.get("num_points") or {}

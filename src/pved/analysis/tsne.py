@@ -14,6 +14,16 @@ module reports two numbers that make the visual claims checkable:
   The individual subspace should separate the agents (≈1), the shared one should not
   (≈0.5), which is the paper's "distinct and well separated" vs "overlap" reading.
 
+For Humanoid → Ant (Fig. 7 and Fig. 8 of the paper) two additions:
+
+* later frames: the target's strip of a mark can show, below the nearest frame, frames a
+  few steps later in the same episode (:func:`later_frame_indices`; the paper shows two
+  for Ant "because we find the movement of Ant is not clear with a single frame");
+* the x split (Fig. 8): the target's points of the shared embedding are grouped by
+  k-means and each group's points counted before and after an x threshold (the Curve's
+  12 m, where its slope stops rising), from the torso x the locomotion envs report
+  (:func:`x_split_by_group`, :func:`write_x_split`).
+
 The rollout helpers here (one Gymnasium-form episode per seed, the target reset with the
 source's task parameters) are also used by :mod:`pved.analysis.bound` and
 :mod:`pved.analysis.video`.
@@ -57,6 +67,9 @@ class EpisodeRecord:
     options: dict[str, np.ndarray] | None
     reset_info: dict[str, Any]
     success: bool
+    # (T,) the env's info["x_position"] (torso x, m, locomotion envs) in the state obs[t]
+    # describes; None where the env does not report it (Reacher, Jaco/Fetch).
+    x_position: np.ndarray | None = None
 
     @property
     def length(self) -> int:
@@ -106,10 +119,14 @@ def run_episode(
     ``options``) until it terminates, truncates or reaches ``max_steps`` steps.
 
     With ``frames`` given (env in ``rgb_array`` mode), the initial frame and one frame
-    after every step are appended to it.
+    after every step are appended to it. Where the env's reset and step infos hold
+    ``x_position``, it is recorded per step (aligned with ``obs``).
     """
     opts = {k: np.asarray(v, dtype=np.float64) for k, v in options.items()} if options else None
     obs, info = env.reset(seed=int(seed), options=opts)
+    # The x of the state obs describes: the reset's info, then each step's info.
+    x_now = info.get("x_position")
+    x_log: list[float] | None = [] if x_now is not None else None
     rng = np.random.default_rng(seed)  # exploration noise when not deterministic
     if frames is not None:
         frames.append(np.asarray(env.render()))
@@ -122,7 +139,12 @@ def run_episode(
         action = policy.act(np.asarray(obs, dtype=np.float64)[None], deterministic, rng)[0]
         obs_log.append(np.asarray(obs, dtype=np.float64).copy())
         act_log.append(np.asarray(action, dtype=np.float64))
+        if x_log is not None:
+            x_log.append(float(np.asarray(x_now)))
         obs, reward, terminated, truncated, step_info = env.step(action)
+        x_now = step_info.get("x_position")
+        if x_now is None:  # an env reporting x only at reset: none rather than a partial log
+            x_log = None
         rew_log.append(float(reward))
         success = bool(step_info.get("is_success", success))
         if frames is not None:
@@ -139,6 +161,7 @@ def run_episode(
         options=opts,
         reset_info={k: np.asarray(v) for k, v in info.items()},
         success=success,
+        x_position=None if x_log is None else np.asarray(x_log, dtype=np.float64),
     )
 
 
@@ -235,6 +258,9 @@ class SubspaceData:
         time: (N,) normalised time in [0, 1] (step / (episode length − 1)).
         source_episodes / target_episodes: the rollouts, for re-simulating frames.
         source_env_id / target_env_id / source_env_kwargs / target_env_kwargs: the envs.
+        x_position: (N,) torso x (m) of each step where the env reports it (NaN for the
+            rows of an agent whose env does not), or None when neither env does; the
+            x split of Fig. 8 needs it.
     """
 
     shared: np.ndarray
@@ -249,6 +275,7 @@ class SubspaceData:
     target_env_id: str
     source_env_kwargs: dict[str, Any] = field(default_factory=dict)
     target_env_kwargs: dict[str, Any] = field(default_factory=dict)
+    x_position: np.ndarray | None = None
 
     @property
     def num_points(self) -> int:
@@ -312,13 +339,15 @@ def embed_rollouts(
     # Both agents' individual factors go into one embedding, so they need one size.
     if ind_s is not None and ind_t is not None and ind_s.mean.shape[1] == ind_t.mean.shape[1]:
         individual = torch.cat([ind_s.mean, ind_t.mean]).double().numpy()
-    agent, episode, step, time = [], [], [], []
+    agent, episode, step, time, x_pos = [], [], [], [], []
     for a, eps in ((SOURCE, src), (TARGET, tgt)):
         for e, ep in enumerate(eps):
             agent.append(np.full(ep.length, a))
             episode.append(np.full(ep.length, e))
             step.append(np.arange(ep.length))
             time.append(normalised_time(ep.length))
+            x_pos.append(np.full(ep.length, np.nan) if ep.x_position is None else ep.x_position)
+    x_all = np.concatenate(x_pos)
     return SubspaceData(
         shared=shared.double().numpy(),
         individual=individual,
@@ -332,6 +361,7 @@ def embed_rollouts(
         target_env_id=target_env_id,
         source_env_kwargs=dict(source_env_kwargs or {}),
         target_env_kwargs=dict(target_env_kwargs or {}),
+        x_position=None if np.all(np.isnan(x_all)) else x_all,
     )
 
 
@@ -360,6 +390,16 @@ def tsne_2d(points: np.ndarray, seed: int = 0, perplexity: float | None = None) 
         return np.asarray(tsne.fit_transform(x), dtype=np.float64)
 
 
+def subspace_embeddings(data: SubspaceData, seed: int = 0) -> dict[str, np.ndarray]:
+    """``{"shared": (N, 2), "individual": (N, 2)}`` t-SNE embeddings (the latter only when
+    the data has an individual subspace), to share one embedding between the scatters,
+    the marks and the x split."""
+    emb = {"shared": tsne_2d(data.shared, seed)}
+    if data.individual is not None:
+        emb["individual"] = tsne_2d(data.individual, seed)
+    return emb
+
+
 def mark_positions(embedding: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
     """``k`` positions spread over a 2-D embedding: k-means centres, which sit in the
     populated regions (a farthest-point pick would favour isolated outliers)."""
@@ -376,6 +416,82 @@ def _nearest(embedding: np.ndarray, mask: np.ndarray, position: np.ndarray) -> i
     rows = np.flatnonzero(mask)
     d = np.linalg.norm(embedding[rows] - position, axis=1)
     return int(rows[np.argmin(d)])
+
+
+# ------------------------------------------------------------ later frames (Fig. 7)
+#: Later target frames per mark, by target agent (paper IV.C, Fig. 7 (d)–(h): "we show
+#: three frames for Ant: the first frame is the one nearest to the marks ..., the other two
+#: frames are two future frames following the first frame. This is because we find the
+#: movement of Ant is not clear with a single frame"). Keyed by the target agent rather
+#: than the pair because the reason is Ant's body: four alike legs whose pose in one frame
+#: does not show which leg is moving. Other agents get none, as in Figs. 4–6.
+LATER_FRAMES_BY_TARGET_AGENT: dict[str, int] = {"Ant": 2}
+
+#: Control steps between consecutive later frames. The paper gives no spacing; 5 steps are
+#: 0.25 s for Ant (0.05 s per control step), time for a leg to move visibly, while the
+#: last of two later frames (0.5 s on) still shows the movement that starts at the nearest
+#: frame rather than a later phase of the gait. Consecutive steps (0.05 s) would look alike.
+DEFAULT_LATER_FRAME_STRIDE = 5
+
+
+def default_later_frames(target_agent: str) -> int:
+    """Later target frames per mark for ``target_agent`` (2 for Ant, Fig. 7; else 0)."""
+    return LATER_FRAMES_BY_TARGET_AGENT.get(target_agent, 0)
+
+
+def later_frame_indices(t: int, episode_length: int, n: int, stride: int) -> list[int]:
+    """Steps of a mark's target strip (Fig. 7 (d)–(h)): the nearest step ``t`` and ``n``
+    later steps ``t + stride``, ..., ``t + n·stride`` of the same episode, clamped to its
+    last step ``episode_length − 1`` (so a strip near the episode end repeats that step
+    rather than leaving the episode).
+
+    Raises:
+        PvedError: ``t`` outside the episode, ``n < 0`` or ``stride < 1``.
+    """
+    if not 0 <= t < episode_length:
+        raise PvedError(f"step {t} is outside an episode of {episode_length} steps")
+    if n < 0 or stride < 1:
+        raise PvedError(f"later frames need n >= 0 and stride >= 1, got n={n}, stride={stride}")
+    return [min(t + k * stride, episode_length - 1) for k in range(n + 1)]
+
+
+@dataclass(frozen=True)
+class StripFrame:
+    """One frame of a mark strip: ``agent``'s episode ``episode`` before its action
+    ``step``; ``offset`` steps after the point nearest the mark (0 for that point), and
+    ``clamped`` when the episode ended before the requested offset."""
+
+    agent: int
+    episode: int
+    step: int
+    offset: int
+    clamped: bool = False
+
+
+def mark_strip(
+    embedding: np.ndarray,
+    data: SubspaceData,
+    position: np.ndarray,
+    target_later_frames: int = 0,
+    later_frame_stride: int = DEFAULT_LATER_FRAME_STRIDE,
+) -> list[StripFrame]:
+    """The frames of one mark's strip, top to bottom: the source point nearest to
+    ``position`` in ``embedding`` (the shared t-SNE embedding, rows as in ``data``), the
+    nearest target point, and ``target_later_frames`` later steps of the target's episode
+    (:func:`later_frame_indices`; Fig. 7 shows two for Ant)."""
+    strip = []
+    for a in (SOURCE, TARGET):
+        row = _nearest(embedding, data.agent == a, position)
+        ep, st = int(data.episode[row]), int(data.step[row])
+        strip.append(StripFrame(a, ep, st, 0))
+        if a == TARGET and target_later_frames > 0:
+            length = int(np.sum((data.agent == a) & (data.episode == ep)))
+            steps = later_frame_indices(st, length, target_later_frames, later_frame_stride)
+            for k, later in enumerate(steps[1:], start=1):
+                strip.append(
+                    StripFrame(a, ep, later, later - st, later - st < k * later_frame_stride)
+                )
+    return strip
 
 
 def _save_figure(fig: Any, path: Path) -> Path:
@@ -437,10 +553,23 @@ def replay_frame(env: Any, episode: EpisodeRecord, step: int) -> np.ndarray:
     replaying its recorded actions from the same seed and options in ``env`` (a rendering
     Gymnasium-form env of the same id): the rollouts stored no simulator states, and a
     replay is exact because the simulation is deterministic given the seed."""
+    return replay_frames(env, episode, [step])[0]
+
+
+def replay_frames(env: Any, episode: EpisodeRecord, steps: Sequence[int]) -> list[np.ndarray]:
+    """:func:`replay_frame` for several ``steps`` of one episode (in the given order,
+    repeats allowed) from a single replay, so a strip with later frames costs one."""
+    wanted = sorted(set(int(s) for s in steps))
+    if wanted and not 0 <= wanted[0] <= wanted[-1] <= episode.length:
+        raise PvedError(f"steps {wanted} are outside an episode of {episode.length} steps")
     env.reset(seed=episode.seed, options=episode.options)
-    for t in range(step):
-        env.step(episode.act[t])
-    return np.asarray(env.render())
+    rendered: dict[int, np.ndarray] = {}
+    for t in range(wanted[-1] + 1 if wanted else 0):
+        if t in wanted:
+            rendered[t] = np.asarray(env.render())
+        if t < wanted[-1]:
+            env.step(episode.act[t])
+    return [rendered[int(s)] for s in steps]
 
 
 def plot_tsne(
@@ -451,10 +580,13 @@ def plot_tsne(
     seed: int = 0,
     image_size: int = 240,
     embeddings: Mapping[str, np.ndarray] | None = None,
+    target_later_frames: int = 0,
+    later_frame_stride: int = DEFAULT_LATER_FRAME_STRIDE,
 ) -> list[Path]:
-    """Figs. 4–7 (a)–(g): the t-SNE scatter of the shared and (if present) the individual
+    """Figs. 4–7 (a)–(h): the t-SNE scatter of the shared and (if present) the individual
     subspace, and one PNG strip per mark with the source frame (top) and the target frame
-    (bottom) nearest to it in the shared embedding.
+    (below it) nearest to it in the shared embedding, followed by ``target_later_frames``
+    later frames of the target's episode (Fig. 7 shows two for Ant).
 
     Args:
         data: from :func:`embed_rollouts`.
@@ -463,6 +595,8 @@ def plot_tsne(
         seed: t-SNE and k-means seed.
         image_size: width and height of the rendered frames in pixels.
         embeddings: precomputed ``{"shared": (N, 2), "individual": (N, 2)}``.
+        target_later_frames: later target frames per mark (:func:`default_later_frames`).
+        later_frame_stride: control steps between them.
 
     Returns:
         the written paths.
@@ -472,6 +606,11 @@ def plot_tsne(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if target_later_frames < 0 or later_frame_stride < 1:
+        raise PvedError(
+            f"later frames need target_later_frames >= 0 and later_frame_stride >= 1, got "
+            f"{target_later_frames} and {later_frame_stride}"
+        )
     out = Path(out_dir)
     emb = dict(embeddings or {})
     if "shared" not in emb:
@@ -502,22 +641,201 @@ def plot_tsne(
     episodes = (data.source_episodes, data.target_episodes)
     try:
         for j, pos in enumerate(centres, start=1):
-            fig, axes = plt.subplots(2, 1, figsize=(3.0, 6.2))
+            strip = mark_strip(emb["shared"], data, pos, target_later_frames, later_frame_stride)
+            fig, axes = plt.subplots(
+                len(strip), 1, figsize=(3.0, 3.1 * len(strip)), squeeze=False, layout="constrained"
+            )
             for a in (SOURCE, TARGET):
-                row = _nearest(emb["shared"], data.agent == a, pos)
-                ep, st = int(data.episode[row]), int(data.step[row])
-                frame = replay_frame(envs[a], episodes[a][ep], st)
-                axes[a].imshow(frame)
-                axes[a].set_title(
-                    f"{AGENT_NAMES[a]}: ep {ep}, step {st}, t={data.time[row]:.2f}", fontsize=8
-                )
-                axes[a].axis("off")
+                rows = [i for i, f in enumerate(strip) if f.agent == a]
+                ep = strip[rows[0]].episode
+                frames = replay_frames(envs[a], episodes[a][ep], [strip[i].step for i in rows])
+                for i, frame in zip(rows, frames, strict=True):
+                    f, ax = strip[i], axes[i, 0]
+                    ax.imshow(frame)
+                    if f.offset == 0:
+                        t = normalised_time(episodes[a][ep].length)[f.step]
+                        title = f"{AGENT_NAMES[a]}: ep {ep}, step {f.step}, t={t:.2f}"
+                    else:
+                        end = " (episode end)" if f.clamped else ""
+                        title = f"{AGENT_NAMES[a]}: +{f.offset} steps (step {f.step}){end}"
+                    ax.set_title(title, fontsize=8)
+                    ax.axis("off")
             fig.suptitle(f"mark ({j})", fontsize=10)
             paths.append(_save_figure(fig, out / f"mark_{j}.png"))
     finally:
         for env in envs:
             env.close()
     return paths
+
+
+# --------------------------------------------------------------- x split (Fig. 8)
+def x_split_by_group(
+    embedding: np.ndarray,
+    x: np.ndarray,
+    threshold: float,
+    groups: int = 2,
+    seed: int = 0,
+    *,
+    marks: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """Fig. 8's statistics: k-means groups of 2-D embedded points, each counted before
+    (``x < threshold``) and after (``x >= threshold``) an x position.
+
+    The paper sees Ant's shared embedding fall into two groups (around marks (2) and (4))
+    and reads them as two strategies, one for the Curve before 12 m and one for the slope
+    after it, "validated by the summary shown in Fig. 8". Each group's fraction after the
+    threshold makes that checkable: fractions near 0 and 1 mean the groups are the two
+    terrain parts, equal fractions mean the grouping has nothing to do with x.
+
+    Args:
+        embedding: (N, 2) points (the target's rows of the shared t-SNE embedding).
+        x: (N,) their x positions (m), finite.
+        threshold: the x that splits before from after (the Curve's 12 m).
+        groups: number of k-means groups (the paper's two).
+        seed: k-means seed.
+        marks: (k, 2) mark positions in the same embedding; each group then names its
+            nearest mark (1-based, as on the scatter), to match groups to marks.
+
+    Returns:
+        ``{"threshold_m", "before", "after", "frac_after_range", "groups": [...]}``, groups
+        ordered left to right by centre (as the marks are), each ``{"centre": [x, y],
+        "size", "before", "after", "frac_before", "frac_after"}`` (+ ``"nearest_mark"``);
+        ``frac_after_range`` is the largest minus the smallest ``frac_after`` (1: the
+        groups split exactly at the threshold; 0: no relation).
+    """
+    from sklearn.cluster import KMeans
+
+    emb = np.asarray(embedding, dtype=np.float64)
+    xs = np.asarray(x, dtype=np.float64)
+    if emb.ndim != 2 or xs.shape != (emb.shape[0],):
+        raise PvedError(f"need (N, d) points and (N,) x, got {emb.shape} and {xs.shape}")
+    if not np.all(np.isfinite(xs)):
+        raise PvedError("x positions must be finite")
+    if not 1 <= groups <= emb.shape[0]:
+        raise PvedError(f"groups must be in [1, {emb.shape[0]}], got {groups}")
+    km = KMeans(n_clusters=groups, n_init=10, random_state=seed).fit(emb)
+    order = np.argsort(km.cluster_centers_[:, 0])
+    rank = np.empty(groups, dtype=np.int64)
+    rank[order] = np.arange(groups)
+    labels = rank[km.labels_]
+    centres = np.asarray(km.cluster_centers_)[order]
+    after = xs >= threshold
+    entries: list[dict[str, Any]] = []
+    for g, centre in enumerate(centres):
+        sel = labels == g
+        size, n_after = int(sel.sum()), int(after[sel].sum())
+        entry: dict[str, Any] = {
+            "centre": [float(v) for v in centre],
+            "size": size,
+            "before": size - n_after,
+            "after": n_after,
+            # k-means leaves no group empty; the guard keeps NaN out of the JSON anyway.
+            "frac_before": (size - n_after) / size if size else 0.0,
+            "frac_after": n_after / size if size else 0.0,
+        }
+        if marks is not None and len(marks) > 0:
+            d = np.linalg.norm(np.asarray(marks, dtype=np.float64) - centre, axis=1)
+            entry["nearest_mark"] = int(np.argmin(d)) + 1
+        entries.append(entry)
+    fracs = [e["frac_after"] for e in entries]
+    return {
+        "threshold_m": float(threshold),
+        "before": int(np.sum(~after)),
+        "after": int(np.sum(after)),
+        "frac_after_range": float(max(fracs) - min(fracs)),
+        "groups": entries,
+    }
+
+
+def plot_x_split(
+    embedding: np.ndarray,
+    x: np.ndarray,
+    split: Mapping[str, Any],
+    path: Path | str,
+    marks: np.ndarray | None = None,
+) -> Path:
+    """Fig. 8 as ``path`` (PNG): left, the points in grey shades by group (each point
+    joins its nearest centre, the k-means rule) with the group centres and the marks;
+    right, per group a bar pair of the points before and after the threshold, with the
+    fraction after on top."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    emb = np.asarray(embedding, dtype=np.float64)
+    entries = list(split["groups"])
+    centres = np.asarray([e["centre"] for e in entries], dtype=np.float64)
+    labels = np.argmin(np.linalg.norm(emb[:, None, :] - centres[None], axis=2), axis=1)
+    threshold = float(split["threshold_m"])
+    fig, (ax_e, ax_b) = plt.subplots(1, 2, figsize=(10.0, 4.2))
+    # Grey shades as the paper's "grayscale groups"; the bars carry the colours.
+    shades = np.linspace(0.25, 0.7, len(entries))
+    for g, shade in enumerate(shades):
+        sel = labels == g
+        ax_e.scatter(emb[sel, 0], emb[sel, 1], s=6, color=str(shade), linewidths=0)
+        # Below-left of the centre, clear of the marks' labels (above-right of them).
+        ax_e.annotate(f"G{g + 1}", centres[g], xytext=(-8, -16), textcoords="offset points",
+                      fontsize=11, weight="bold", color="tab:red")  # fmt: skip
+    if marks is not None:
+        for j, pos in enumerate(np.asarray(marks), start=1):
+            ax_e.scatter([pos[0]], [pos[1]], marker="x", c="black", s=60)
+            ax_e.annotate(f"({j})", pos, xytext=(4, 4), textcoords="offset points", fontsize=9)
+    ax_e.set_title("target points of the shared embedding, by group")
+    ax_e.set_xticks([])
+    ax_e.set_yticks([])
+    pos = np.arange(len(entries))
+    width = 0.38
+    before = [e["before"] for e in entries]
+    after = [e["after"] for e in entries]
+    ax_b.bar(pos - width / 2, before, width, color="tab:blue", label=f"x < {threshold:g} m")
+    ax_b.bar(pos + width / 2, after, width, color="tab:orange", label=f"x ≥ {threshold:g} m")
+    for g, e in enumerate(entries):
+        top = max(e["before"], e["after"])
+        ax_b.annotate(f"{e['frac_after']:.2f} after", (pos[g], top), ha="center",
+                      xytext=(0, 3), textcoords="offset points", fontsize=9)  # fmt: skip
+    names = [
+        f"G{g + 1}" + (f" (near mark ({e['nearest_mark']}))" if "nearest_mark" in e else "")
+        for g, e in enumerate(entries)
+    ]
+    ax_b.set_xticks(pos, names)
+    # Headroom above the tallest bar for the fractions and the legend.
+    ax_b.set_ylim(0, 1.25 * max([1, *before, *after]))
+    ax_b.set_ylabel("points (steps)")
+    ax_b.set_title(f"points before / after x = {threshold:g} m per group")
+    ax_b.legend(loc="upper right")
+    return _save_figure(fig, Path(path))
+
+
+def write_x_split(
+    data: SubspaceData,
+    shared_embedding: np.ndarray,
+    out_dir: Path | str,
+    threshold: float,
+    *,
+    groups: int = 2,
+    seed: int = 0,
+    marks: np.ndarray | None = None,
+) -> dict[str, Any] | None:
+    """Fig. 8 for the target agent: :func:`x_split_by_group` on the target's rows of
+    ``shared_embedding`` (rows as in ``data``) and their x positions, drawn to
+    ``out_dir/fig8_groups.png`` (:func:`plot_x_split`).
+
+    Returns:
+        the split (with ``"agent": "target"``), or None, writing nothing, when the target's
+        env reports no x positions (the arm pairs).
+    """
+    if data.x_position is None:
+        return None
+    tgt = data.agent == TARGET
+    x = data.x_position[tgt]
+    if not np.all(np.isfinite(x)):
+        return None
+    emb = np.asarray(shared_embedding, dtype=np.float64)[tgt]
+    split: dict[str, Any] = {"agent": AGENT_NAMES[TARGET]}
+    split.update(x_split_by_group(emb, x, threshold, groups, seed, marks=marks))
+    plot_x_split(emb, x, split, Path(out_dir) / "fig8_groups.png", marks)
+    return split
 
 
 # ---------------------------------------------------------------------- numbers

@@ -636,22 +636,77 @@ def analyze_subspaces(
     episodes: int = 6,
     marks: int = 4,
     seed: int = 0,
+    target_later_frames: int | None = None,
+    later_frame_stride: int | None = None,
+    x_groups: int = 2,
 ) -> dict[str, Any]:
     """``pved tsne``: t-SNE of both agents' shared and individual posterior means along
     target-task rollouts (paper IV.C, Figs. 4–7), frames nearest to marks, and the numbers
-    beside them (time correspondence, agent-identity probes) in ``out/numbers.json``."""
-    from pved.analysis.tsne import embed_rollouts, plot_tsne, subspace_numbers
+    beside them (time correspondence, agent-identity probes) in ``out/numbers.json``.
+
+    For Humanoid → Ant also the paper's Fig. 7 and Fig. 8 additions:
+
+    * ``target_later_frames`` later target frames per mark, ``later_frame_stride`` control
+      steps apart (None: :func:`pved.analysis.tsne.default_later_frames` of the pair's
+      target agent, 2 for Ant, and ``DEFAULT_LATER_FRAME_STRIDE``);
+    * on Curve, where the envs report the torso x, ``fig8_groups.png`` and
+      ``numbers["x_split"]``: the target's shared-embedding points in ``x_groups``
+      k-means groups, counted before and after the x where the Curve's slope stops rising
+      (``CURVE_RAMP_LENGTH``, 12 m). Other tasks have no such landmark and skip it.
+    """
+    from pved.analysis.tsne import (
+        DEFAULT_LATER_FRAME_STRIDE,
+        default_later_frames,
+        embed_rollouts,
+        mark_positions,
+        plot_tsne,
+        subspace_embeddings,
+        subspace_numbers,
+        write_x_split,
+    )
+    from pved.envs.terrain import CURVE_RAMP_LENGTH
 
     torch.set_num_threads(1)
     preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
         pair, model_path, target_policy, source_policy
     )
+    # The default follows the target agent (Ant's movement needs several frames, Fig. 7),
+    # not the pair's name, so any pair with an Ant target gets it.
+    later = (
+        default_later_frames(preset.target_agent)
+        if target_later_frames is None
+        else int(target_later_frames)
+    )
+    stride = DEFAULT_LATER_FRAME_STRIDE if later_frame_stride is None else int(later_frame_stride)
+    if later < 0 or stride < 1:  # checked before the rollouts, which take the time
+        raise PvedError(f"--later-frames must be >= 0 and its stride >= 1, got {later}, {stride}")
     data = embed_rollouts(
         model, src, tgt, src_id, tgt_id, episodes, seed, match_keys=preset.bank_match_keys
     )
     out = Path(out)
-    figures = plot_tsne(data, out, marks=marks, seed=seed)
+    # One embedding for the scatters, the marks and the x split, so the groups' centres
+    # and the marks are positions in the same picture.
+    emb = subspace_embeddings(data, seed)
+    figures = plot_tsne(
+        data,
+        out,
+        marks=marks,
+        seed=seed,
+        embeddings=emb,
+        target_later_frames=later,
+        later_frame_stride=stride,
+    )
     numbers = subspace_numbers(data, seed=seed)
+    centres = mark_positions(emb["shared"], marks, seed) if marks > 0 else None
+    numbers["marks"] = [] if centres is None else centres.tolist()
+    numbers["mark_frames"] = {"target_later_frames": later, "later_frame_stride": stride}
+    if preset.target_task == "Curve":
+        split = write_x_split(
+            data, emb["shared"], out, CURVE_RAMP_LENGTH, groups=x_groups, seed=seed, marks=centres
+        )
+        if split is not None:
+            numbers["x_split"] = split
+            figures.append(out / "fig8_groups.png")
     atomic_write_json(out / "numbers.json", numbers)
     return {"figures": [str(p) for p in figures], "numbers": numbers}
 
