@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean
+.PHONY: demo test lint system-deps clean reproduce
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -16,6 +16,14 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 
 demo: $(STAMP)
 	$(VENV)/bin/pved demo
+
+# The paper's protocol on one pair with every method: make reproduce PAIR=reacher BUDGET=quick
+PAIR    ?= reacher
+BUDGET  ?= quick
+METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2017 ppo oracle
+reproduce: $(STAMP)
+	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
+		--out reports/$(PAIR)-$(BUDGET)
 
 test: $(STAMP) lint
 	$(PY) -m pytest -q
