@@ -249,6 +249,15 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     again = json.loads((out / "summary.json").read_text())
     assert again["pairs"]["reacher"]["methods"]["pved"]["final"] == methods["pved"]["final"]
 
+    # the pair report of this protocol: one rendered rollout per method, embedded
+    from pved.analysis.pair_report import build_pair_report
+
+    report = build_pair_report("reacher", [out], tmp_path / "report.html").read_text()
+    for method in ("pved", "ppo"):
+        assert (out / "videos" / f"{method}.gif").stat().st_size > 0
+        assert f"{method}: its first evaluation run" in report
+    assert report.count('src="data:image/gif;base64,') == 2
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)

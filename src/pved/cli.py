@@ -130,7 +130,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
         # The runs-mode options would be silently ignored here; say so instead.
         if args.seeds is not None or args.methods is not None:
             raise PvedError("--seeds and --methods are for the report of runs, not with DIRs")
-        print(build_pair_report(args.pair, args.inputs, args.out))
+        print(build_pair_report(args.pair, args.inputs, args.out, videos=not args.no_videos))
         return
     from pved.analysis.report import transfer_report
     from pved.config import get_preset
@@ -360,6 +360,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="runs mode: the report folder (required); with DIRs: the HTML file "
         "(default: reports/<pair>-report.html)",
+    )
+    p.add_argument(
+        "--no-videos",
+        action="store_true",
+        help="with a protocol DIR: do not render one rollout per method",
     )
     p.set_defaults(func=_cmd_report)
 

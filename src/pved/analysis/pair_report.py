@@ -25,10 +25,15 @@ from typing import Any
 
 from pved import __version__
 from pved.config import get_preset
+from pved.envs.registry import env_id
 from pved.errors import PvedError
 from pved.runs import atomic_write_bytes
 
 VIDEO_SUFFIXES = (".gif", ".mp4", ".webm")
+# the rollouts rendered for a protocol's methods: long enough to see the gait or the
+# insertion, small enough to keep a report of 8 methods a few MB
+VIDEO_MAX_STEPS = 300
+VIDEO_SIZE = 160
 # Keys a bound JSON must have: those of pved.analysis.bound.BoundResult the report shows.
 BOUND_KEYS = ("delta", "quantile", "a", "b", "m", "bound", "gap", "held")
 EXPECTED = (
@@ -96,6 +101,7 @@ class _Parts:
     numbers: list[tuple[Path, dict[str, Any]]] = field(default_factory=list)
     bounds: list[tuple[Path, dict[str, Any], bool]] = field(default_factory=list)  # parsed?
     videos: list[tuple[str, Path]] = field(default_factory=list)  # (caption, file)
+    render_videos: bool = True  # a protocol input gets one rendered rollout per method
 
 
 # ---------------------------------------------------------------------- small helpers
@@ -232,6 +238,34 @@ def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     header = ["method", "runs", f"final {label}: mean [95% CI]", "IQM [95% CI]"]
     header += ["steps to PPO's final", "β", "init"]
     parts.tables.append(f'<p class="note">{escape(" ".join(notes))}</p>' + _table(header, rows))
+    if parts.render_videos:
+        _add_method_videos(pair, directory, methods, parts)
+
+
+def _add_method_videos(
+    pair: str, directory: Path, methods: Mapping[str, Any], parts: _Parts
+) -> None:
+    """One rollout per method: the policy of its first evaluation run on the target
+    task, rendered once into ``<protocol>/videos/<method>.gif`` and reused after."""
+    from pved.analysis.video import render_rollout
+
+    preset = get_preset(pair)
+    env = env_id(preset.target_agent, preset.target_task)
+    for method, m in methods.items():
+        runs = m.get("runs") or []
+        if not runs or not runs[0].get("result"):
+            continue
+        policy = Path(runs[0]["result"]).parent / "policy.pt"
+        if not policy.is_file():
+            continue
+        out = directory / "videos" / f"{method}.gif"
+        if not out.is_file():
+            render_rollout(
+                policy, env, out, seed=0, max_steps=VIDEO_MAX_STEPS,
+                width=VIDEO_SIZE, height=VIDEO_SIZE,
+            )  # fmt: skip
+        caption = f"{method}: its first evaluation run ({runs[0].get('key', '')}) on {env}"
+        _add_video(out, caption, parts)
 
 
 def _add_transfer_report(pair: str, directory: Path, parts: _Parts) -> None:
@@ -367,8 +401,8 @@ def _add_video(path: Path, caption: str, parts: _Parts) -> None:
     parts.videos.append((caption, path))
 
 
-def _collect(pair: str, inputs: Sequence[Path]) -> _Parts:
-    parts = _Parts()
+def _collect(pair: str, inputs: Sequence[Path], render_videos: bool = True) -> _Parts:
+    parts = _Parts(render_videos=render_videos)
     for raw in inputs:
         path = Path(raw)
         if not path.exists():
@@ -405,8 +439,17 @@ def _collect_dir(pair: str, directory: Path, parts: _Parts) -> None:
             if not _add_bound_file(pair, candidate, parts):
                 raise PvedError(f"{candidate} is not a pved bound ({EXPECTED})")
             found = True
+    # a protocol's run tree is not searched (thousands of files, no videos), nor are the
+    # per-method videos it already added
+    added = {p.resolve() for _, p in parts.videos}
+    runs = (directory / "runs").resolve() if (directory / "protocol.json").is_file() else None
     videos = sorted(
-        p for p in directory.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES and p.is_file()
+        p
+        for p in directory.rglob("*")
+        if p.suffix.lower() in VIDEO_SUFFIXES
+        and p.is_file()
+        and p.resolve() not in added
+        and (runs is None or runs not in p.resolve().parents)
     )
     for video in videos:
         _add_video(video, str(video.relative_to(directory)), parts)
@@ -593,14 +636,17 @@ def default_report_path(pair: str) -> Path:
     return Path("reports") / f"{pair}-report.html"
 
 
-def build_pair_report(pair: str, inputs: Sequence[Path], out: Path | None = None) -> Path:
+def build_pair_report(
+    pair: str, inputs: Sequence[Path], out: Path | None = None, videos: bool = True
+) -> Path:
     """Write one self-contained HTML report of ``pair`` from other verbs' outputs.
 
     Each input is recognised by what it contains (a directory may hold several kinds):
 
     * protocol directory (``pved protocol``): ``protocol.json`` listing ``pair``, its
-      ``summary.json`` (table: mean and IQM with CIs, steps to PPO's final, β, init) and
-      ``curves-<pair>.png``;
+      ``summary.json`` (table: mean and IQM with CIs, steps to PPO's final, β, init),
+      ``curves-<pair>.png``, and (with ``videos``) one rollout per method of the policy of
+      its first evaluation run, rendered once into ``videos/<method>.gif`` there;
     * transfer-report directory (``pved report`` without DIRs): ``results.json`` (table)
       and ``curves_*.png``;
     * t-SNE directory (``pved tsne --out``): ``numbers.json`` and/or ``tsne_shared.png``,
@@ -618,6 +664,7 @@ def build_pair_report(pair: str, inputs: Sequence[Path], out: Path | None = None
         pair: a preset name (``pved list``).
         inputs: the outputs, in the order their items should appear.
         out: the HTML file (default ``reports/<pair>-report.html``); written atomically.
+        videos: render the protocol's per-method rollouts (offscreen MuJoCo).
 
     Returns:
         ``out``.
@@ -630,7 +677,7 @@ def build_pair_report(pair: str, inputs: Sequence[Path], out: Path | None = None
     get_preset(pair)  # an unknown pair fails first, with the known ones
     if not inputs:
         raise PvedError("a pair report needs at least one input directory or file")
-    parts = _collect(pair, inputs)
+    parts = _collect(pair, inputs, render_videos=videos)
     page = _render(pair, parts)
     path = default_report_path(pair) if out is None else Path(out)
     if path.is_dir():
