@@ -254,7 +254,9 @@ def panels_figure(panels: list[Panel], reps: int = 2000) -> Figure:
             [handles[m] for m in methods],
             [f"{m} ({_run_counts(counts[m])})" for m in methods],
             loc="outside lower center",
-            ncol=min(len(methods), 6),
+            # about two entries per panel width, so the legend wraps rather than
+            # running past the figure's edges (8 methods under one panel)
+            ncol=max(1, min(len(methods), 2 * cols)),
             frameon=False,
         )
     return fig
@@ -271,7 +273,7 @@ def plot_panels(panels: list[Panel], path: Path, reps: int = 2000) -> Path:
 
     buffer = io.BytesIO()
     try:
-        fig.savefig(buffer, format="png")
+        fig.savefig(buffer, format="png", bbox_inches="tight")  # nothing clipped
     finally:
         plt.close(fig)
     atomic_write_bytes(path, buffer.getvalue())
