@@ -206,7 +206,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         time.sleep(0.5)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    finished_before = {p.parent for p in transfers.glob("*/seed*/result.json")}
+    finished_before = {
+        p.parent: (p.stat().st_mtime_ns, p.read_bytes())
+        for p in transfers.glob("*/seed*/result.json")
+    }
     assert finished_before
     assert not (out / "summary.json").exists()
 
@@ -231,9 +234,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     for name in ("curves.png", "curves-reacher.png", "summary.md", "status.json"):
         assert (out / name).stat().st_size > 0
     assert "| pved |" in (out / "summary.md").read_text()
-    # finished runs are not redone: their results are untouched
-    for run_dir in finished_before:
-        assert (run_dir / "result.json").stat().st_mtime < (out / "summary.json").stat().st_mtime
+    # finished runs are not redone: their results are the very same files
+    for run_dir, (mtime, content) in finished_before.items():
+        result = run_dir / "result.json"
+        assert result.stat().st_mtime_ns == mtime and result.read_bytes() == content
 
     # `pved plot` redraws from the run files alone
     (out / "curves.png").unlink()
