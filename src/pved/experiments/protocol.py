@@ -543,6 +543,14 @@ def summarize(out: Path | str, report: RunnerReport | None = None) -> dict[str, 
 
     ``report`` (from the run that just ended) adds failed and blocked jobs; without it
     (``pved plot``) the summary lists the runs that are missing instead."""
+    return _summarize(out, report)[0]
+
+
+def _summarize(
+    out: Path | str, report: RunnerReport | None = None
+) -> tuple[dict[str, Any], list[Panel]]:
+    """:func:`summarize`, also returning the per-pair panels it drew (for ``pved plot``'s
+    combined figure, so the runs are read and bootstrapped once)."""
     from pved.analysis.curves import bootstrap_summary, plot_panels, steps_to_reach
 
     out = Path(out).resolve()
@@ -609,7 +617,7 @@ def summarize(out: Path | str, report: RunnerReport | None = None) -> dict[str, 
     atomic_write_json(out / "selection.json", plan.selection)
     atomic_write_json(out / "summary.json", summary)
     atomic_write_bytes(out / "summary.md", _markdown(summary, plan).encode())
-    return summary
+    return summary, panels
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -691,14 +699,11 @@ def plot_protocols(dirs: Sequence[Path | str], combined: Path | str | None = Non
     panels: list[Panel] = []
     for d in dirs:
         out = Path(d).resolve()
-        summarize(out)
+        budget = ProtocolPlan.load(out).budget.name
+        _, pair_panels = _summarize(out)
         written.append(out / "curves.png")
-        plan = ProtocolPlan.load(out)
-        results = _finished_results(plan)
-        for pair in plan.pairs:
-            panel = pair_panel(plan, pair, results, title=f"{pair} ({plan.budget.name})")
-            if panel is not None:
-                panels.append(panel)
+        # the combined figure may hold one pair at several budgets: say which in the title
+        panels += [dataclasses.replace(p, title=f"{p.title} ({budget})") for p in pair_panels]
     if combined is not None and panels:
         written.append(plot_panels(panels, Path(combined)))
     return [p for p in written if p.exists()]
