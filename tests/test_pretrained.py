@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 
 from pved.envs import make_batched
+from pved.errors import PvedError
 from pved.experiments.stages import file_digest
-from pved.pretrained import PRETRAINED_DIR
+from pved.pretrained import PRETRAINED_DIR, pretrained_policy_path, shipped_seeds
 from pved.rl.policy import load_policy
 
 SHIPPED = sorted(PRETRAINED_DIR.glob("*.pt"))
@@ -43,3 +44,16 @@ def test_shipped_policy_matches_its_record(path: Path) -> None:
         key, bar, episodes = BARS[meta["task"]]
         assert evaluation["episodes"] >= episodes
         assert evaluation[key] >= bar, f"{path.name}: {key} {evaluation[key]} < {bar}"
+
+
+def test_a_task_defaults_to_its_lowest_shipped_seed() -> None:
+    # seeds that missed their bar are not shipped, so a task's seeds may start above 0
+    for path in SHIPPED:
+        meta = json.loads(path.with_suffix(".json").read_text())
+        seeds = shipped_seeds(meta["agent"], meta["task"])
+        assert meta["seed"] in seeds
+        assert pretrained_policy_path(meta["agent"], meta["task"]).stem.endswith(
+            f"_seed{min(seeds)}"
+        )
+    with pytest.raises(PvedError, match="no pretrained policy for Hopper on Curve"):
+        pretrained_policy_path("Hopper", "Curve")

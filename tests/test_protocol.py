@@ -111,6 +111,37 @@ def test_plan_trains_the_policies_the_package_does_not_ship(tmp_path: Path) -> N
     assert bank2.deps == ("policy/Reacher3-Push/seed2",)
 
 
+def test_plan_uses_the_shipped_seeds_whichever_they_are(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a seed that missed its bar is not shipped: with Walker2d Curve seeds 1 and 3 shipped,
+    # the three source policies are seeds 1 and 3, then a run training seed 0
+    import pved.pretrained
+
+    shipped = tmp_path / "pretrained"
+    shipped.mkdir()
+    for stem in (
+        "walker2d_curve_seed1",
+        "walker2d_curve_seed3",
+        "walker2d_slope_seed0",
+        "hopper_slope_seed1",
+    ):
+        (shipped / f"{stem}.pt").write_bytes(b"")
+    monkeypatch.setattr(pved.pretrained, "PRETRAINED_DIR", shipped)
+    plan = ProtocolPlan(["walker-hopper"], ["pved"], "quick", tmp_path / "out")
+    jobs = {j.key: j for j in plan.expand({})}
+    banks = [jobs[f"walker-hopper/bank/src{k}"] for k in range(3)]
+    assert [Path(b.kwargs["source_policy"]).name for b in banks[:2]] == [
+        "walker2d_curve_seed1.pt",
+        "walker2d_curve_seed3.pt",
+    ]
+    assert banks[2].deps == ("policy/Walker2d-Curve/seed0",)
+    # pairing uses the lowest shipped seed of each training-task policy: Hopper's is 1
+    pairs = jobs["walker-hopper/pairs"]
+    assert Path(pairs.kwargs["target_policy"]).name == "hopper_slope_seed1.pt"
+    assert not any(k.startswith(("policy/Hopper", "policy/Walker2d-Slope")) for k in jobs)
+
+
 # -- the runner ---------------------------------------------------------------------------
 
 

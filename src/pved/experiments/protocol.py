@@ -26,6 +26,7 @@ from the run files alone (``pved plot``).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -51,7 +52,7 @@ from pved.experiments.stages import (
     transfer,
 )
 from pved.models.registry import model_class
-from pved.pretrained import PRETRAINED_DIR
+from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
 if TYPE_CHECKING:
@@ -151,12 +152,15 @@ class ProtocolPlan:
         size = self.budget.beta_grid_size
         return grid if size is None else grid[:size]
 
-    def _policy(self, agent: str, task: str, seed: int) -> tuple[Path, Job | None]:
-        """The policy file of ``agent`` on ``task`` with ``seed``: the shipped one, or
-        the run that trains it (and that job)."""
-        shipped = PRETRAINED_DIR / f"{agent.lower()}_{task.lower()}_seed{seed}.pt"
-        if shipped.exists():
-            return shipped, None
+    def _policy(self, agent: str, task: str, index: int) -> tuple[Path, Job | None]:
+        """The ``index``-th policy of ``agent`` on ``task``: the shipped ones in seed order
+        (a seed that missed its bar is not shipped), then runs that train the seeds not
+        shipped, 0, 1, ... (with the job that trains it)."""
+        shipped = shipped_seeds(agent, task)
+        if index < len(shipped):
+            return pretrained_policy_path(agent, task, shipped[index]), None
+        unshipped = (s for s in itertools.count() if s not in shipped)
+        seed = next(itertools.islice(unshipped, index - len(shipped), None))
         preset = preset_for_agent(agent)
         run_dir = run_path(self.runs, preset.name, "policy", f"{agent}-{task}", seed)
         steps = self.budget.policy_steps or preset.policy_config(agent, task).total_steps
@@ -420,8 +424,8 @@ class ProtocolPlan:
                 needed += [
                     (preset.source_agent, preset.target_task, k) for k in range(b.source_policies)
                 ]
-                for agent, task, seed in needed:
-                    _, job = self._policy(agent, task, seed)
+                for agent, task, index in needed:
+                    _, job = self._policy(agent, task, index)
                     total += job.steps if job else 0
         return total
 

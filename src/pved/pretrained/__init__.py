@@ -13,9 +13,27 @@ from pved.errors import PvedError
 PRETRAINED_DIR = Path(__file__).resolve().parent
 
 
-def pretrained_policy_path(agent: str, task: str, seed: int = 0) -> Path:
-    """The shipped policy of ``agent`` on ``task``; :class:`PvedError` when none is shipped."""
-    path = PRETRAINED_DIR / f"{agent.lower()}_{task.lower()}_seed{seed}.pt"
+def _stem(agent: str, task: str) -> str:
+    return f"{agent.lower()}_{task.lower()}_seed"
+
+
+def shipped_seeds(agent: str, task: str) -> list[int]:
+    """The seeds of ``agent``'s shipped policies on ``task``, ascending.
+
+    Not always 0, 1, 2: a seed whose policy fell short of its issue's bar is not shipped
+    (docs/results.md lists those), so the k-th policy of a task is the k-th of these."""
+    stem = _stem(agent, task)
+    seeds = (p.stem.removeprefix(stem) for p in PRETRAINED_DIR.glob(f"{stem}*.pt"))
+    return sorted(int(s) for s in seeds if s.isdigit())
+
+
+def pretrained_policy_path(agent: str, task: str, seed: int | None = None) -> Path:
+    """The shipped policy of ``agent`` on ``task`` with ``seed`` (default: the lowest
+    shipped seed); :class:`PvedError` when none is shipped."""
+    if seed is None:
+        seeds = shipped_seeds(agent, task)
+        seed = seeds[0] if seeds else 0
+    path = PRETRAINED_DIR / f"{_stem(agent, task)}{seed}.pt"
     if not path.exists():
         shipped = sorted(p.stem for p in PRETRAINED_DIR.glob("*.pt"))
         raise PvedError(
