@@ -3,12 +3,14 @@ and on all cores, in one invocation; the last line is the speed-up.
 
 The grid is what the protocol runs most: plain-PPO transfer runs of the Reacher pair
 (``pved.experiments.stages.transfer``), one per seed, each ``--steps`` env steps, all
-through :func:`pved.experiments.runner.run_jobs` (Ray, one CPU per run). Wall times
-exclude Ray's start-up (measured from the first submission); each setting writes to its
-own fresh directory, so nothing is reused.
+through :func:`pved.experiments.runner.run_jobs` (Ray, or ``--backend processes`` where
+Ray is not installed; one CPU per run). Wall times exclude the backend's start-up
+(measured from the first submission); each setting writes to its own fresh directory, so
+nothing is reused.
 
     .venv/bin/python benchmarks/protocol_scaling.py                 # runs = cores
     .venv/bin/python benchmarks/protocol_scaling.py --runs 32 --steps 100000
+    .venv/bin/python benchmarks/protocol_scaling.py --backend processes
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from pved.experiments.runner import Job, run_jobs
+from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer
 
 
@@ -62,12 +64,15 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=cores, help="runs in the grid")
     parser.add_argument("--steps", type=int, default=50_000, help="env steps per run")
     parser.add_argument("--workers", type=int, default=cores, help="the parallel setting")
+    parser.add_argument("--backend", default="auto", help="auto | ray | processes")
     args = parser.parse_args()
+    backend = resolve_backend(args.backend)
 
     walls: dict[int, float] = {}
     for workers in (1, args.workers):
         with tempfile.TemporaryDirectory(prefix="pved-scaling-") as tmp:
-            report = run_jobs(Grid(Path(tmp), args.runs, args.steps), workers=workers, live=False)
+            grid = Grid(Path(tmp), args.runs, args.steps)
+            report = run_jobs(grid, workers=workers, live=False, backend=backend)
             if report.failed:
                 raise SystemExit(f"runs failed at {workers} workers: {report.failed}")
             walls[workers] = report.wall_s
@@ -78,7 +83,7 @@ def main() -> None:
                 flush=True,
             )
     speedup = walls[1] / walls[args.workers]
-    print(f"cores {cores}; ideal speed-up {min(args.workers, args.runs)}")
+    print(f"cores {cores}; backend {backend}; ideal speed-up {min(args.workers, args.runs)}")
     print(f"speed-up {args.workers} workers / 1 worker: {speedup:.2f}")
 
 

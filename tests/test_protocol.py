@@ -17,7 +17,7 @@ import pytest
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan
-from pved.experiments.runner import Job, run_jobs
+from pved.experiments.runner import Job, resolve_backend, run_jobs
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -172,11 +172,23 @@ class _FixedPlan:
         return 0
 
 
-def test_runner_retries_then_reports_failures_and_blocked_jobs(tmp_path: Path) -> None:
-    from ray import cloudpickle
+def _dies_once(marker: str) -> str:
+    path = Path(marker)
+    if not path.exists():
+        path.write_text("died")
+        os._exit(1)  # the worker process itself dies (as when killed or out of memory)
+    return "second life"
 
-    # Ray's workers import functions by module; this test module is not importable there
-    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+@pytest.mark.parametrize("backend", ["ray", "processes"])
+def test_runner_retries_then_reports_failures_and_blocked_jobs(
+    tmp_path: Path, backend: str
+) -> None:
+    if backend == "ray":
+        from ray import cloudpickle
+
+        # Ray's workers import functions by module; this test module is not importable there
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
     jobs = [
         Job("a", _ok, {"value": 3}),
         Job("b", _always_fails),
@@ -184,13 +196,45 @@ def test_runner_retries_then_reports_failures_and_blocked_jobs(tmp_path: Path) -
         Job("d", _fails_once, {"marker": str(tmp_path / "marker")}),
         Job("e", _ok, {"value": 5}, deps=("a",)),
     ]
-    report = run_jobs(_FixedPlan(jobs), workers=2, retries=2, log_dir=tmp_path / "logs", live=False)
+    report = run_jobs(
+        _FixedPlan(jobs),
+        workers=2,
+        retries=2,
+        log_dir=tmp_path / "logs",
+        live=False,
+        backend=backend,
+    )
     assert report.results == {"a": 3, "d": "second attempt", "e": 5}
     assert list(report.failed) == ["b"] and "this run always fails" in report.failed["b"]
     assert "\n" not in report.failed["b"]
-    assert report.attempts["b"] == 3 and report.attempts["d"] == 2 and report.attempts["a"] == 1
+    assert report.attempts["b"] == 3 and report.attempts["d"] == 2
     assert report.blocked == ["c"]
     assert "this run always fails" in (tmp_path / "logs" / "b.txt").read_text()
+
+
+@pytest.mark.parametrize("backend", ["ray", "processes"])
+def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) -> None:
+    # alone in flight: on the process pool a dead worker fails every job the pool held
+    if backend == "ray":
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    jobs = [
+        Job("f", _dies_once, {"marker": str(tmp_path / "died")}),
+        Job("g", _ok, {"value": 6}, deps=("f",)),
+    ]
+    report = run_jobs(_FixedPlan(jobs), workers=2, retries=1, live=False, backend=backend)
+    assert report.results == {"f": "second life", "g": 6}
+    assert report.attempts == {"f": 2, "g": 1} and not report.failed
+
+
+def test_runner_backend_errors_are_one_line() -> None:
+    with pytest.raises(PvedError, match="unknown backend 'dask'"):
+        resolve_backend("dask")
+    with pytest.raises(PvedError, match="needs backend 'ray'"):
+        resolve_backend("processes", "127.0.0.1:6379")
+    assert resolve_backend("auto") == "ray"  # installed here
+    assert resolve_backend("processes") == "processes"
 
 
 # -- end to end -----------------------------------------------------------------------------

@@ -182,6 +182,7 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
         address=args.address,
         workers=args.workers,
         retries=args.retries,
+        backend=args.backend,
     )
     failed = len(summary["failed"]) + len(summary["blocked"])
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
@@ -434,6 +435,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", help="a running Ray cluster (default: a local one)")
     p.add_argument("--workers", type=int, help="CPUs of the local Ray (default: all)")
     p.add_argument("--retries", type=int, default=2, help="attempts after a run's failure")
+    p.add_argument(
+        "--backend",
+        default="auto",
+        help="ray, or processes: a local pool for machines without Ray; default auto: "
+        "ray where it is installed",
+    )
     p.set_defaults(func=_cmd_protocol)
 
     p = sub.add_parser("plot", help="redraw a protocol's curves and summary from its runs")

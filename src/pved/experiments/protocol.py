@@ -39,7 +39,13 @@ import numpy as np
 from pved import __version__
 from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
 from pved.errors import PvedError
-from pved.experiments.runner import Job, RunnerReport, check_reachable, run_jobs
+from pved.experiments.runner import (
+    Job,
+    RunnerReport,
+    check_reachable,
+    resolve_backend,
+    run_jobs,
+)
 from pved.experiments.stages import (
     NO_TRANSFER,
     REFERENCE_METHODS,
@@ -459,14 +465,17 @@ def run_protocol(
     workers: int | None = None,
     retries: int = 2,
     live: bool = True,
+    backend: str = "auto",
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
 
     A directory that already holds a protocol must hold the same one (pairs, methods,
-    budget): its finished runs are reused and unfinished ones resumed."""
+    budget): its finished runs are reused and unfinished ones resumed. ``backend``: see
+    :func:`pved.experiments.runner.run_jobs`."""
     plan = ProtocolPlan(pairs, methods, budget, Path(out))
+    resolve_backend(backend, address)  # before anything is written
     if address:
-        check_reachable(address)  # before anything is written
+        check_reachable(address)
     plan_path = plan.out / PLAN_FILE
     description = plan.describe()
     if plan_path.exists():
@@ -491,6 +500,7 @@ def run_protocol(
         status_path=plan.out / "status.json",
         log_dir=plan.out / "failures",
         live=live,
+        backend=backend,
     )
     return summarize(plan.out, report)
 

@@ -12,19 +12,26 @@ and continues the rest from their last checkpoints.
 
 Ray is started locally with ``workers`` CPUs unless ``address`` names a running cluster
 (whose nodes must have ``pved`` installed and see the output directory, e.g. on a shared
-file system). A job that raises, or whose worker dies, is submitted again up to
-``retries`` times, then recorded as failed with its error; jobs that depend on it are
-reported as blocked. Nothing is hidden: the final :class:`RunnerReport` lists both.
+file system). Where Ray is not installed (its wheel is ~80 MB: too big to carry to some
+machines) the ``processes`` backend runs the same graph on a local pool of processes, one
+job each. A job that raises, or whose worker dies, is submitted again up to ``retries``
+times, then recorded as failed with its error; jobs that depend on it are reported as
+blocked. Nothing is hidden: the final :class:`RunnerReport` lists both.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
+import contextlib
+import importlib.util
 import json
+import multiprocessing
 import os
+import signal
 import sys
 import time
 import traceback
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -98,6 +105,157 @@ def _call(fn: Callable[..., Any], kwargs: Mapping[str, Any]) -> Any:
 
     torch.set_num_threads(1)
     return fn(**kwargs)
+
+
+#: The backends :func:`run_jobs` knows; ``auto`` is Ray where it is installed.
+BACKENDS = ("auto", "ray", "processes")
+
+#: Worker niceness of the ``processes`` backend, Ray's default for its workers: on a
+#: shared machine, interactive work keeps priority over a long grid.
+WORKER_NICENESS = 15
+
+
+def resolve_backend(backend: str, address: str | None = None) -> str:
+    """``ray`` or ``processes`` for ``backend``; :class:`PvedError` when it cannot run here."""
+    if backend not in BACKENDS:
+        raise PvedError(f"unknown backend {backend!r}; known: {', '.join(BACKENDS)}")
+    has_ray = importlib.util.find_spec("ray") is not None
+    if backend == "auto":
+        backend = "ray" if has_ray or address else "processes"
+    if backend == "ray" and not has_ray:
+        raise PvedError("backend 'ray' needs Ray installed (pip install ray); or use processes")
+    if backend == "processes" and address:
+        raise PvedError("--address attaches to a Ray cluster; it needs backend 'ray'")
+    return backend
+
+
+class _Executor(Protocol):
+    """What :func:`run_jobs` needs of a backend; a handle stands for one submitted job."""
+
+    def submit(self, fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any: ...
+
+    def wait(self, handles: list[Any], timeout: float) -> list[Any]:
+        """The handles among ``handles`` that have finished (at least one, or none after
+        ``timeout`` seconds)."""
+        ...
+
+    def result(self, handle: Any) -> Any:
+        """The job's return value; raises its error (or the worker's death)."""
+        ...
+
+    def shutdown(self) -> None: ...
+
+
+class _RayExecutor:
+    def __init__(self, workers: int | None, address: str | None):
+        import ray
+
+        self.ray = ray
+        self.started_here = not ray.is_initialized()
+        if self.started_here:
+            init: dict[str, Any] = {
+                "include_dashboard": False,
+                "log_to_driver": False,
+                "runtime_env": {"env_vars": WORKER_ENV},
+            }
+            if address:
+                check_reachable(address)
+                init["address"] = address
+            else:
+                init["num_cpus"] = workers or os.cpu_count() or 1
+            try:
+                ray.init(**init)
+            except (ConnectionError, RuntimeError, ValueError) as err:
+                where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+                raise PvedError(f"cannot start or reach {where}: {_one_line(err)}") from None
+        # max_retries=0: the retries are ours, so that each attempt's error can be recorded
+        self.remote_call = ray.remote(num_cpus=1, max_retries=0)(_call)
+
+    def submit(self, fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
+        return self.remote_call.remote(fn, kwargs)
+
+    def wait(self, handles: list[Any], timeout: float) -> list[Any]:
+        ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
+        return list(ready)
+
+    def result(self, handle: Any) -> Any:
+        return self.ray.get(handle)
+
+    def shutdown(self) -> None:
+        if self.started_here:
+            self.ray.shutdown()
+
+
+def _init_process_worker() -> None:
+    """A ``processes`` worker: Ray's niceness, and death with the driver (Linux), so a
+    killed driver leaves no run writing behind the next invocation's back."""
+    with contextlib.suppress(OSError):
+        os.nice(WORKER_NICENESS)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        with contextlib.suppress(OSError, AttributeError):
+            pr_set_pdeathsig = 1
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
+
+
+@contextlib.contextmanager
+def _environment(values: Mapping[str, str]) -> Iterator[None]:
+    """``os.environ`` with ``values`` set, restored afterwards (spawned workers inherit it)."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, old in saved.items():
+            if old is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = old
+
+
+class _ProcessExecutor:
+    """A local pool of ``workers`` spawned processes (fresh interpreters: no forked torch
+    or MuJoCo state). A worker that dies breaks the pool; the jobs it held fail this
+    attempt and a new pool takes the retries."""
+
+    def __init__(self, workers: int | None):
+        self.workers = workers or os.cpu_count() or 1
+        self.pool = self._new_pool()
+        self.pools: dict[Any, concurrent.futures.ProcessPoolExecutor] = {}
+
+    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        return concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_process_worker,
+        )
+
+    def submit(self, fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
+        future = self.pool.submit(_call, fn, kwargs)
+        self.pools[future] = self.pool
+        return future
+
+    def wait(self, handles: list[Any], timeout: float) -> list[Any]:
+        done, _ = concurrent.futures.wait(
+            handles, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED
+        )
+        return list(done)
+
+    def result(self, handle: Any) -> Any:
+        pool = self.pools.pop(handle)
+        try:
+            return handle.result()
+        except concurrent.futures.process.BrokenProcessPool:
+            if pool is self.pool:  # the first of its jobs to report it: replace the pool
+                self.pool.shutdown(wait=False, cancel_futures=True)
+                self.pool = self._new_pool()
+            raise RuntimeError("its worker process died (killed, or out of memory)") from None
+
+    def shutdown(self) -> None:
+        # not waiting: after an error or Ctrl-C the running jobs are abandoned (Ctrl-C
+        # reaches the workers too; a killed driver takes them along, see above)
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _last_step(metrics: Path) -> int:
@@ -191,43 +349,48 @@ def run_jobs(
     log_dir: Path | None = None,
     live: bool = True,
     poll_s: float = 1.0,
+    backend: str = "auto",
 ) -> RunnerReport:
-    """Run ``planner``'s jobs on Ray until none is left to run.
+    """Run ``planner``'s jobs on Ray (or a local process pool) until none is left to run.
 
     Args:
         planner: gives the jobs (see :class:`Planner`).
-        workers: CPUs of the local Ray instance (default: all); ignored with ``address``.
+        workers: CPUs of the local Ray instance or process pool (default: all); ignored
+            with ``address``.
         address: a running Ray cluster to attach to (``ray start --head`` prints it);
             None starts a local instance that ends with this call.
         retries: how many times a failed job is submitted again before it is reported.
         status_path: where the live view's ``status.json`` goes.
         log_dir: where each failed attempt's traceback is written (``<key>.txt``).
         live: print the live view.
+        backend: ``ray``, ``processes`` (a local pool, for machines without Ray) or
+            ``auto`` (Ray where it is installed).
     """
-    import ray
-
     if retries < 0:
         raise PvedError(f"retries must be >= 0, got {retries}")
-    started_here = not ray.is_initialized()
-    if started_here:
-        init: dict[str, Any] = {
-            "include_dashboard": False,
-            "log_to_driver": False,
-            "runtime_env": {"env_vars": WORKER_ENV},
-        }
-        if address:
-            check_reachable(address)
-            init["address"] = address
+    backend = resolve_backend(backend, address)
+    with contextlib.ExitStack() as stack:
+        executor: _Executor
+        if backend == "ray":
+            executor = _RayExecutor(workers, address)
         else:
-            init["num_cpus"] = workers or os.cpu_count() or 1
-        try:
-            ray.init(**init)
-        except (ConnectionError, RuntimeError, ValueError) as err:
-            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-            raise PvedError(f"cannot start or reach {where}: {_one_line(err)}") from None
-    # max_retries=0: the retries are ours, so that each attempt's error can be recorded
-    remote_call = ray.remote(num_cpus=1, max_retries=0)(_call)
+            # spawned workers inherit the driver's environment
+            stack.enter_context(_environment(WORKER_ENV))
+            executor = _ProcessExecutor(workers)
+        stack.callback(executor.shutdown)
+        return _run(planner, executor, retries, status_path, log_dir, live, poll_s)
 
+
+def _run(
+    planner: Planner,
+    executor: _Executor,
+    retries: int,
+    status_path: Path | None,
+    log_dir: Path | None,
+    live: bool,
+    poll_s: float,
+) -> RunnerReport:
+    """:func:`run_jobs`' loop, on a started backend."""
     t0 = time.monotonic()
     results: dict[str, Any] = {}
     failed: dict[str, str] = {}
@@ -242,7 +405,7 @@ def run_jobs(
         if attempts[job.key] == 1 and job.run_dir is not None:
             if (job.run_dir / "result.json").exists():
                 reused.append(job.key)
-        in_flight[remote_call.remote(job.fn, dict(job.kwargs))] = job
+        in_flight[executor.submit(job.fn, dict(job.kwargs))] = job
 
     def blocked_keys() -> list[str]:
         bad = set(failed)
@@ -262,64 +425,59 @@ def run_jobs(
                 steps += min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
         return steps
 
-    try:
-        while True:
-            for job in planner.expand(results):
-                if job.key not in known:
-                    known[job.key] = job
-            running_keys = {j.key for j in in_flight.values()}
-            blocked = set(blocked_keys())
-            for job in known.values():
-                if (
-                    job.key not in results
-                    and job.key not in failed
-                    and job.key not in running_keys
-                    and job.key not in blocked
-                    and all(d in results for d in job.deps)
-                ):
-                    submit(job)
-            if view is not None:
-                pending = len(known) - len(results) - len(failed) - len(in_flight)
-                view.update(
-                    len(results),
-                    len(in_flight),
-                    len(failed),
-                    pending,
-                    progress_steps(),
-                    max(planner.expected_steps(), progress_steps()),
-                )
-            if not in_flight:
-                break
-            ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=poll_s)
-            for ref in ready:
-                job = in_flight.pop(ref)
-                try:
-                    results[job.key] = ray.get(ref)
-                except Exception as err:  # a stage error or a dead worker: retry, then report
-                    message = _one_line(err)
-                    if log_dir is not None:
-                        log_dir.mkdir(parents=True, exist_ok=True)
-                        with (log_dir / f"{job.key.replace('/', '_')}.txt").open("a") as fh:
-                            fh.write(f"attempt {attempts[job.key]}:\n")
-                            fh.write("".join(traceback.format_exception(err)) + "\n")
-                    if attempts[job.key] <= retries:
-                        submit(job)
-                    else:
-                        failed[job.key] = message
+    while True:
+        for job in planner.expand(results):
+            if job.key not in known:
+                known[job.key] = job
+        running_keys = {j.key for j in in_flight.values()}
+        blocked = set(blocked_keys())
+        for job in known.values():
+            if (
+                job.key not in results
+                and job.key not in failed
+                and job.key not in running_keys
+                and job.key not in blocked
+                and all(d in results for d in job.deps)
+            ):
+                submit(job)
         if view is not None:
+            pending = len(known) - len(results) - len(failed) - len(in_flight)
             view.update(
                 len(results),
-                0,
+                len(in_flight),
                 len(failed),
-                0,
+                pending,
                 progress_steps(),
                 max(planner.expected_steps(), progress_steps()),
-                force=True,
             )
-            view.close()
-    finally:
-        if started_here:
-            ray.shutdown()
+        if not in_flight:
+            break
+        for handle in executor.wait(list(in_flight), poll_s):
+            job = in_flight.pop(handle)
+            try:
+                results[job.key] = executor.result(handle)
+            except Exception as err:  # a stage error or a dead worker: retry, then report
+                message = _one_line(err)
+                if log_dir is not None:
+                    log_dir.mkdir(parents=True, exist_ok=True)
+                    with (log_dir / f"{job.key.replace('/', '_')}.txt").open("a") as fh:
+                        fh.write(f"attempt {attempts[job.key]}:\n")
+                        fh.write("".join(traceback.format_exception(err)) + "\n")
+                if attempts[job.key] <= retries:
+                    submit(job)
+                else:
+                    failed[job.key] = message
+    if view is not None:
+        view.update(
+            len(results),
+            0,
+            len(failed),
+            0,
+            progress_steps(),
+            max(planner.expected_steps(), progress_steps()),
+            force=True,
+        )
+        view.close()
     return RunnerReport(
         results=results,
         failed=failed,
@@ -350,7 +508,9 @@ def _one_line(err: BaseException) -> str:
     cause: BaseException = err
     while True:  # Ray's task errors carry .cause; connection errors chain __cause__
         inner = getattr(cause, "cause", None) or cause.__cause__
-        if not isinstance(inner, BaseException) or inner is cause:
+        # a process pool chains the worker's traceback text as the job error's cause
+        remote_traceback = type(inner).__name__ == "_RemoteTraceback"
+        if not isinstance(inner, BaseException) or inner is cause or remote_traceback:
             break
         cause = inner
     text = str(cause).strip().splitlines()
