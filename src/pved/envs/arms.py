@@ -73,12 +73,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import ASSETS_DIR, BatchOfOneEnv, MujocoBatchedEnv, split_reward_terms
+from pved.envs.batched import (
+    ASSETS_DIR,
+    BatchOfOneEnv,
+    joint_addresses,
+    resolve_config,
+    select_reward_terms,
+    split_reward_terms,
+)
+from pved.envs.batched import REWARD_MODES as REWARD_MODES
+from pved.envs.hinge_arm import HingeArmBatchedEnv, HingeArmReachBatchedEnv
 from pved.errors import PvedError
 
 # ---------------------------------------------------------------- agents
@@ -86,7 +94,6 @@ SOURCE_AGENT = "Jaco"
 TARGET_AGENT = "Fetch4"
 AGENTS = (SOURCE_AGENT, TARGET_AGENT)
 TASKS = ("Reach", "Peg")
-REWARD_MODES = ("default", "restricted", "full")
 
 #: Joint names of each agent's controlled joints, root to gripper.
 JACO_JOINTS = tuple(f"joint{k}" for k in range(1, 8))
@@ -220,17 +227,11 @@ def reward_terms(agent: str, task: str, reward: str = "default") -> tuple[str, .
     reward, which ``"default"`` and ``"full"`` name.
     """
     _check_agent(agent)
-    if reward not in REWARD_MODES:
-        raise PvedError(f"unknown reward {reward!r}; known: {', '.join(REWARD_MODES)}")
-    if task == "Reach":
-        if reward == "restricted":
-            raise PvedError("reward 'restricted' exists only for Peg; Reach takes 'default'/'full'")
-        return _REACH_TERMS
-    if task == "Peg":
-        if reward == "default":
-            reward = "restricted" if agent == TARGET_AGENT else "full"
-        return _PEG_FULL_TERMS if reward == "full" else _PEG_RESTRICTED_TERMS
-    raise PvedError(f"unknown arm task {task!r}; known tasks: {', '.join(TASKS)}")
+    full = _REACH_TERMS if task == "Reach" else _PEG_FULL_TERMS
+    target_agent = agent == TARGET_AGENT
+    return select_reward_terms(
+        reward, task, TASKS, "arm", target_agent, full, _PEG_RESTRICTED_TERMS
+    )
 
 
 # ---------------------------------------------------------------- models
@@ -413,50 +414,36 @@ def peg_inserted(
 
 
 # ---------------------------------------------------------------- batched envs
-class _ArmBatched(MujocoBatchedEnv):
-    """State and observation of the robot part, common to both tasks."""
+class _ArmBatched(HingeArmBatchedEnv):
+    """State and observation of the robot part, common to both tasks; the arm's end
+    point is the peg tip."""
 
     config: ArmTaskConfig
+    end_name = "tip"
+    end_key = "peg_tip"
 
     def __init__(
         self, config: ArmTaskConfig, task: str, num_envs: int, reward: str, autoreset: bool
     ) -> None:
-        _check_agent(config.agent)
-        self.agent = config.agent
-        self.task = task
-        self.reward_mode = reward
-        self.reward_terms = reward_terms(config.agent, task, reward)
-        if config.timestep <= 0 or config.frame_skip < 1 or config.episode_steps < 1:
-            raise PvedError("timestep must be > 0, frame_skip and episode_steps >= 1")
+        terms = reward_terms(config.agent, task, reward)
+        self._check_timing(config)
         model = build_model(config.agent, task)
-        model.opt.timestep = config.timestep
         names = agent_joint_names(config.agent)
-        joint_ids = [model.joint(n).id for n in names]
-        self._arm_qpos = np.asarray(model.jnt_qposadr[joint_ids], dtype=np.int64)
-        self._arm_dof = np.asarray(model.jnt_dofadr[joint_ids], dtype=np.int64)
+        _, arm_dof = joint_addresses(model, names)
         if model.nu != len(names) or model.nq != len(names):
             raise PvedError(f"{config.agent} model has nq={model.nq}, nu={model.nu}")
         # One set of joint dynamics for both arms (module docstring).
-        model.dof_damping[self._arm_dof] = config.joint_damping
-        model.dof_armature[self._arm_dof] = config.joint_armature
+        model.dof_damping[arm_dof] = config.joint_damping
+        model.dof_armature[arm_dof] = config.joint_armature
         model.actuator_gear[:, 0] = config.joint_gear
-        super().__init__(model, num_envs, config.frame_skip, config.episode_steps, autoreset)
-        self.config = config
-        n = len(names)
-        self.n_joints = n
-        self.joint_names = names
+        rest = REST_QPOS[config.agent]
+        super().__init__(model, config, task, reward, terms, names, rest, 3, num_envs, autoreset)
         self._tip_site = model.site("peg_tip").id
-        self.rest_qpos = np.asarray(REST_QPOS[config.agent], dtype=np.float64)
-        self.peg_tip = np.zeros((self.num_envs, 3))
-        self.robot_state_indices = np.arange(3 * n + 3)
-        self.robot_observation_names: tuple[str, ...] = (
-            *(f"cos_q{k}" for k in range(n)),
-            *(f"sin_q{k}" for k in range(n)),
-            *(f"qvel{k}" for k in range(n)),
-            "tip_x",
-            "tip_y",
-            "tip_z",
-        )
+
+    @property
+    def peg_tip(self) -> np.ndarray:
+        """(N, 3) peg tip position of each copy (the arm's ``end_pos``)."""
+        return self.end_pos
 
     def _derive(self, idx: np.ndarray | slice) -> None:
         # After mj_step the site positions describe the state before the last physics
@@ -465,27 +452,7 @@ class _ArmBatched(MujocoBatchedEnv):
         for i in np.arange(self.num_envs)[idx]:
             data = self.datas[i]
             mujoco.mj_kinematics(self.model, data)
-            self.peg_tip[i] = data.site_xpos[tip_id]
-
-    def _robot_obs(self) -> np.ndarray:
-        """(N, 3n + 3): cos q, sin q, qvel, peg tip xyz."""
-        q = self.qpos[:, self._arm_qpos]
-        return np.concatenate(
-            [np.cos(q), np.sin(q), self.qvel[:, self._arm_dof], self.peg_tip], axis=1
-        )
-
-    def _initial_arm(self, uniforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rest pose plus uniform noise from the first 2n columns of ``uniforms``. The
-        arm's draws come first in both tasks, so one seed gives one agent the same
-        initial arm state on Reach and on Peg."""
-        n, cfg = self.n_joints, self.config
-        q = self.rest_qpos + cfg.init_qpos_noise * (2.0 * uniforms[:, :n] - 1.0)
-        qd = cfg.init_qvel_noise * (2.0 * uniforms[:, n : 2 * n] - 1.0)
-        qpos = np.zeros((len(uniforms), self.model.nq))
-        qvel = np.zeros((len(uniforms), self.model.nv))
-        qpos[:, self._arm_qpos] = q
-        qvel[:, self._arm_dof] = qd
-        return qpos, qvel
+            self.end_pos[i] = data.site_xpos[tip_id]
 
     def ik(
         self, targets: np.ndarray, point_down: bool = False, q0: np.ndarray | None = None
@@ -498,11 +465,8 @@ class _ArmBatched(MujocoBatchedEnv):
             self.model, targets, start, self._arm_qpos, self._arm_dof, point_down=point_down
         )
 
-    def _ctrl_term(self, actions: np.ndarray) -> np.ndarray:
-        return -self.config.ctrl_cost_weight * np.sum(actions * actions, axis=1)
 
-
-class ArmReachBatched(_ArmBatched):
+class ArmReachBatched(HingeArmReachBatchedEnv, _ArmBatched):
     """N copies of ``pved/<agent>Reach-v0`` (see the module docstring).
 
     Args:
@@ -523,74 +487,23 @@ class ArmReachBatched(_ArmBatched):
         config: ArmReachConfig | None = None,
         autoreset: bool = True,
     ) -> None:
-        cfg = _resolve_config(agent, "Reach", config)
-        assert isinstance(cfg, ArmReachConfig)
+        cfg = resolve_config(agent, "Reach", config, ArmReachConfig, default_config)
         if not np.all(np.asarray(cfg.target_low) < np.asarray(cfg.target_high)):
             raise PvedError("need target_low < target_high on every axis")
         super().__init__(cfg, "Reach", num_envs, reward, autoreset)
-        self.target = np.zeros((self.num_envs, 3))
-        self.task_param_keys = ("target",)
-        self.observation_names = (
-            *self.robot_observation_names,
-            "target_x",
-            "target_y",
-            "target_z",
-            "target_minus_tip_x",
-            "target_minus_tip_y",
-            "target_minus_tip_z",
-        )
-        dim = len(self.observation_names)
-        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
+        self._init_reach()
 
     @property
     def _num_reset_uniforms(self) -> int:
         return 2 * self.n_joints + 3  # arm, then target xyz
 
-    def _validate_options(self, options: dict[str, Any]) -> dict[str, np.ndarray]:
-        unknown = set(options) - {"target"}
-        if unknown:
-            raise PvedError(f"unknown reset option(s) {sorted(unknown)}; Reach takes 'target'")
-        return {"target": self._batched_option("target", options["target"], (3,))}
-
-    def _initial_state(
-        self, idx: np.ndarray, uniforms: np.ndarray, options: dict[str, np.ndarray] | None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        cfg = self.config
-        qpos, qvel = self._initial_arm(uniforms)
-        low, high = np.asarray(cfg.target_low), np.asarray(cfg.target_high)
-        target = low + (high - low) * uniforms[:, 2 * self.n_joints :]
-        if options is not None and "target" in options:
-            target = options["target"][idx]
-        self.target[idx] = target
-        return qpos, qvel
-
-    def _get_task_state(self) -> dict[str, np.ndarray]:
-        return {"target": self.target.copy()}
-
-    def _set_task_state(self, state: dict[str, np.ndarray]) -> None:
-        self.target = np.asarray(state["target"], dtype=np.float64).copy()
+    def _draw_target(self, task_u: np.ndarray) -> np.ndarray:
+        low, high = np.asarray(self.config.target_low), np.asarray(self.config.target_high)
+        return low + (high - low) * task_u
 
     def _write_extra(self, i: int, data: mujoco.MjData) -> None:
         # The target is drawn only; its mocap body follows the task parameter.
         data.mocap_pos[0] = self.target[i]
-
-    def _observe(self) -> np.ndarray:
-        return np.concatenate([self._robot_obs(), self.target, self.target - self.peg_tip], axis=1)
-
-    def _evaluate(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Info]:
-        dist = np.linalg.norm(self.peg_tip - self.target, axis=1)
-        terms = {"dist": -self.config.dist_weight * dist, "ctrl": self._ctrl_term(actions)}
-        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
-        info["is_success"] = dist < self.config.success_dist
-        info["peg_tip"] = self.peg_tip.copy()
-        return reward, np.zeros(self.num_envs, dtype=bool), info
-
-    def _reset_info(self) -> Info:
-        dist = np.linalg.norm(self.peg_tip - self.target, axis=1)
-        return {"is_success": dist < self.config.success_dist, "peg_tip": self.peg_tip.copy()}
-
-    def _task_params(self) -> Info:
-        return {"target": self.target.copy()}
 
 
 class ArmPegBatched(_ArmBatched):
@@ -615,8 +528,7 @@ class ArmPegBatched(_ArmBatched):
         config: ArmPegConfig | None = None,
         autoreset: bool = True,
     ) -> None:
-        cfg = _resolve_config(agent, "Peg", config)
-        assert isinstance(cfg, ArmPegConfig)
+        cfg = resolve_config(agent, "Peg", config, ArmPegConfig, default_config)
         if not 0 <= cfg.hole_range <= HOLE_OPTION_RANGE:
             raise PvedError(f"hole_range must lie in [0, {HOLE_OPTION_RANGE}] m")
         if not 0 < cfg.success_depth_tol < HOLE_DEPTH:
@@ -626,17 +538,17 @@ class ArmPegBatched(_ArmBatched):
         self.hole_top_z = TABLE_TOP_Z
         self.hole_bottom_z = TABLE_TOP_Z - HOLE_DEPTH
         self.task_param_keys = ("hole",)
-        self.observation_names = (
-            *self.robot_observation_names,
-            "hole_mid_x",
-            "hole_mid_y",
-            "hole_mid_z",
-            "hole_mid_minus_tip_x",
-            "hole_mid_minus_tip_y",
-            "hole_mid_minus_tip_z",
+        self._set_observation_names(
+            (
+                *self.robot_observation_names,
+                "hole_mid_x",
+                "hole_mid_y",
+                "hole_mid_z",
+                "hole_mid_minus_tip_x",
+                "hole_mid_minus_tip_y",
+                "hole_mid_minus_tip_z",
+            )
         )
-        dim = len(self.observation_names)
-        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
 
     @property
     def hole_mid(self) -> np.ndarray:
@@ -724,17 +636,6 @@ class ArmPegBatched(_ArmBatched):
         return {"hole": self.hole.copy()}
 
 
-def _resolve_config(agent: str, task: str, config: ArmTaskConfig | None) -> ArmTaskConfig:
-    if config is None:
-        return default_config(agent, task)
-    expected = ArmReachConfig if task == "Reach" else ArmPegConfig
-    if not isinstance(config, expected):
-        raise PvedError(f"config for {task} must be an {expected.__name__}")
-    if config.agent != agent:
-        raise PvedError(f"config is for agent {config.agent!r}, not {agent!r}")
-    return config
-
-
 # ---------------------------------------------------------------- Gymnasium form
 class ArmReachEnv(BatchOfOneEnv):
     """``gymnasium.Env`` of the arm Reach task (a batch of one, no autoreset).
@@ -756,7 +657,6 @@ class ArmReachEnv(BatchOfOneEnv):
         super().__init__(
             batched, render_mode=render_mode, width=width, height=height, camera="view"
         )
-        self.observation_names = batched.observation_names
 
 
 class ArmPegEnv(BatchOfOneEnv):
@@ -779,7 +679,6 @@ class ArmPegEnv(BatchOfOneEnv):
         super().__init__(
             batched, render_mode=render_mode, width=width, height=height, camera="view"
         )
-        self.observation_names = batched.observation_names
 
 
 __all__ = [

@@ -15,13 +15,18 @@ not reset options fix some parameters, copy ``i`` of a batch and a single env se
 
 :class:`BatchOfOneEnv` is the plain ``gymnasium.Env``: a batch of one without autoreset,
 plus offscreen ``rgb_array`` rendering through ``mujoco.Renderer``.
+
+What every pair's envs share beyond the machinery lives here too: the reward-mode rule
+(:func:`select_reward_terms`) and the config check (:func:`resolve_config`). The arms of
+hinge joints of the Reacher and robot-arm pairs share more, in :mod:`pved.envs.hinge_arm`.
 """
 
 from __future__ import annotations
 
 from abc import abstractmethod
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import gymnasium as gym
 import mujoco
@@ -33,6 +38,8 @@ from pved.errors import PvedError
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 # Everything MuJoCo needs to continue a simulation exactly (state, controls, warm start).
 _STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+#: The ``reward`` modes every pair's envs take (:func:`select_reward_terms`).
+REWARD_MODES = ("default", "restricted", "full")
 
 
 def load_model(filename: str) -> mujoco.MjModel:
@@ -60,6 +67,81 @@ def split_reward_terms(
     return reward, info
 
 
+def select_reward_terms(
+    reward: str,
+    task: str,
+    tasks: tuple[str, str],
+    family: str,
+    target_agent: bool,
+    full: tuple[str, ...],
+    restricted: tuple[str, ...],
+) -> tuple[str, ...]:
+    """The reward terms summed under ``reward`` mode, by the rule every pair shares.
+
+    Args:
+        reward: "default", "restricted" or "full" (``REWARD_MODES``).
+        task: the task; ``tasks`` = (training task, target task) of the pair.
+        family: the envs' name in the unknown-task error ("arm", "Reacher", ...).
+        target_agent: whether the agent is the pair's target agent.
+        full: the agent's full reward on ``task``; restricted: the paper's target-task
+            reward (used on the target task only).
+
+    ``"full"`` sums ``full``; ``"restricted"``, which exists only on the target task,
+    sums ``restricted``; ``"default"`` is restricted for the target agent on the target
+    task and full otherwise.
+    """
+    if reward not in REWARD_MODES:
+        raise PvedError(f"unknown reward {reward!r}; known: {', '.join(REWARD_MODES)}")
+    if task not in tasks:
+        raise PvedError(f"unknown {family} task {task!r}; known tasks: {', '.join(tasks)}")
+    training_task, target_task = tasks
+    if task == training_task:
+        if reward == "restricted":
+            raise PvedError(
+                f"reward 'restricted' exists only for {target_task}; "
+                f"{training_task} takes 'default'/'full'"
+            )
+        return full
+    if reward == "default":
+        reward = "restricted" if target_agent else "full"
+    return restricted if reward == "restricted" else full
+
+
+class _AgentConfig(Protocol):
+    @property
+    def agent(self) -> str: ...
+
+
+_Config = TypeVar("_Config", bound=_AgentConfig)
+
+
+def resolve_config(
+    agent: str,
+    task: str,
+    config: object | None,
+    expected: type[_Config],
+    default: Callable[[str, str], object],
+) -> _Config:
+    """``config``, or ``default(agent, task)`` when it is None, checked to be an
+    ``expected`` (the task's config class) for ``agent``."""
+    cfg = default(agent, task) if config is None else config
+    if not isinstance(cfg, expected):
+        name = expected.__name__
+        article = "an" if name[0] in "AEIOU" else "a"
+        raise PvedError(f"config for {task} must be {article} {name}")
+    if cfg.agent != agent:
+        raise PvedError(f"config is for agent {cfg.agent!r}, not {agent!r}")
+    return cfg
+
+
+def joint_addresses(model: mujoco.MjModel, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The qpos and dof addresses, (n,) int64 each, of the joints ``names`` of ``model``."""
+    ids = [model.joint(name).id for name in names]
+    qpos_adr = np.asarray(model.jnt_qposadr[ids], dtype=np.int64)
+    dof_adr = np.asarray(model.jnt_dofadr[ids], dtype=np.int64)
+    return qpos_adr, dof_adr
+
+
 def _check_num_envs(num_envs: int) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
         raise PvedError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -69,8 +151,9 @@ def _check_num_envs(num_envs: int) -> int:
 class MujocoBatchedEnv(BatchedEnv):
     """N copies of one MuJoCo model; a task subclass supplies the task logic.
 
-    Subclasses set ``single_observation_space``, ``robot_state_indices`` and implement the
-    hooks ``_num_reset_uniforms``, ``_initial_state``, ``_observe``, ``_evaluate``,
+    Subclasses set ``single_observation_space`` and ``observation_names`` (e.g. with
+    :meth:`_set_observation_names`) and ``robot_state_indices``, and implement the hooks
+    ``_num_reset_uniforms``, ``_initial_state``, ``_observe``, ``_evaluate``,
     ``_reset_info`` and ``_task_params``. State arrays kept up to date after every step and reset:
 
     Attributes:
@@ -82,7 +165,10 @@ class MujocoBatchedEnv(BatchedEnv):
         dt: control period in seconds (``timestep * frame_skip``).
         task_param_keys: the ``info`` keys holding task parameters (set by the task).
         autoreset: whether ``step`` resets finished copies (True for the batched form).
+        observation_names: the name of every observation entry (set by the task).
     """
+
+    observation_names: tuple[str, ...]
 
     def __init__(
         self,
@@ -327,6 +413,13 @@ class MujocoBatchedEnv(BatchedEnv):
         self._derive(idx)
         self.elapsed_steps[idx] = 0
 
+    def _set_observation_names(self, names: tuple[str, ...]) -> None:
+        """Set ``observation_names`` and the unbounded float64 ``single_observation_space``
+        of that many entries."""
+        self.observation_names = names
+        dim = len(names)
+        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
+
     def _batched_option(self, name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
         """``value`` as an (N, *shape) float64 array; a single (*shape) value is
         broadcast to every copy."""
@@ -381,6 +474,8 @@ class BatchOfOneEnv(gym.Env[np.ndarray, np.ndarray]):
         self._width, self._height, self._camera = int(width), int(height), camera
         self._renderer: mujoco.Renderer | None = None
         self._scratch: mujoco.MjData | None = None
+        # Every task names its observation entries; the plain env shows them too.
+        self.observation_names = batched.observation_names
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None

@@ -92,14 +92,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv, split_reward_terms
+from pved.envs.batched import REWARD_MODES as REWARD_MODES
+from pved.envs.batched import (
+    BatchOfOneEnv,
+    MujocoBatchedEnv,
+    select_reward_terms,
+    split_reward_terms,
+)
 from pved.envs.terrain import (
     CURVE_MAX_DEG,
     CURVE_RAMP_LENGTH,
@@ -119,7 +124,6 @@ AGENTS = ("Walker2d", "Hopper", "Humanoid", "Ant")
 SOURCE_OF_TARGET: dict[str, str] = {"Hopper": "Walker2d", "Ant": "Humanoid"}
 TARGET_AGENTS = tuple(SOURCE_OF_TARGET)
 TASKS = ("Slope", "Curve")
-REWARD_MODES = ("default", "restricted", "full")
 #: Gymnasium v5's model file of each agent (in gymnasium/envs/mujoco/assets).
 AGENT_XML: dict[str, str] = {
     "Walker2d": "walker2d_v5.xml",
@@ -299,18 +303,11 @@ def reward_terms(agent: str, task: str, reward: str = "default") -> tuple[str, .
     """
     _check_agent(agent)
     _check_task(task)
-    if reward not in REWARD_MODES:
-        raise PvedError(f"unknown reward {reward!r}; known: {', '.join(REWARD_MODES)}")
     full = _PLANAR_TERMS if agent in PLANAR_AGENTS else _SPATIAL_TERMS
-    if task == "Slope":
-        if reward == "restricted":
-            raise PvedError(
-                "reward 'restricted' exists only for Curve; Slope takes 'default'/'full'"
-            )
-        return full
-    if reward == "default":
-        reward = "restricted" if agent in TARGET_AGENTS else "full"
-    return _RESTRICTED_TERMS[agent] if reward == "restricted" else full
+    target_agent = agent in TARGET_AGENTS
+    return select_reward_terms(
+        reward, task, TASKS, "locomotion", target_agent, full, _RESTRICTED_TERMS[agent]
+    )
 
 
 def _validate_config(cfg: LocomotionConfig) -> None:
@@ -536,10 +533,8 @@ class _LocomotionBatched(MujocoBatchedEnv):
                 extras += [f"qfrc_actuator_{name}" for name in qvel_names[6:]]
             extras += [f"cfrc_ext_{b}_{k}" for b in body_names for k in range(6)]
         self.robot_observation_names: tuple[str, ...] = robot
-        self.observation_names: tuple[str, ...] = (*robot, *extras, "local_slope")
+        self._set_observation_names((*robot, *extras, "local_slope"))
         self.robot_state_indices = np.arange(len(robot))
-        dim = len(self.observation_names)
-        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
 
     def _start_pose_extents(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World bounding boxes of the collidable geoms in v5's default pose on flat
@@ -817,50 +812,44 @@ class LocomotionCurveBatched(_LocomotionBatched):
 
 
 # ---------------------------------------------------------------- Gymnasium form
-class LocomotionSlopeEnv(BatchOfOneEnv):
+class _LocomotionEnv(BatchOfOneEnv):
+    """The Gymnasium form of a locomotion task, whose batched form is ``batched_class``."""
+
+    batched_class: ClassVar[type[_LocomotionBatched]]
+
+    def __init__(
+        self,
+        agent: str = "Walker2d",
+        reward: str = "default",
+        config: LocomotionConfig | None = None,
+        render_mode: str | None = None,
+        width: int = 240,
+        height: int = 240,
+    ) -> None:
+        batched = self.batched_class(agent, 1, reward=reward, config=config, autoreset=False)
+        super().__init__(
+            batched, render_mode=render_mode, width=width, height=height, camera=CAMERA
+        )
+
+
+class LocomotionSlopeEnv(_LocomotionEnv):
     """``gymnasium.Env`` of ``pved/<agent>Slope-v0`` (a batch of one, no autoreset).
 
     Args: as :class:`LocomotionSlopeBatched`, plus ``render_mode`` (None or "rgb_array")
     and the image ``width``/``height`` in pixels; the camera follows the agent.
     """
 
-    def __init__(
-        self,
-        agent: str = "Walker2d",
-        reward: str = "default",
-        config: LocomotionConfig | None = None,
-        render_mode: str | None = None,
-        width: int = 240,
-        height: int = 240,
-    ) -> None:
-        batched = LocomotionSlopeBatched(agent, 1, reward=reward, config=config, autoreset=False)
-        super().__init__(
-            batched, render_mode=render_mode, width=width, height=height, camera=CAMERA
-        )
-        self.observation_names = batched.observation_names
+    batched_class = LocomotionSlopeBatched
 
 
-class LocomotionCurveEnv(BatchOfOneEnv):
+class LocomotionCurveEnv(_LocomotionEnv):
     """``gymnasium.Env`` of ``pved/<agent>Curve-v0`` (a batch of one, no autoreset).
 
     Args: as :class:`LocomotionCurveBatched`, plus ``render_mode`` (None or "rgb_array")
     and the image ``width``/``height`` in pixels; the camera follows the agent.
     """
 
-    def __init__(
-        self,
-        agent: str = "Walker2d",
-        reward: str = "default",
-        config: LocomotionConfig | None = None,
-        render_mode: str | None = None,
-        width: int = 240,
-        height: int = 240,
-    ) -> None:
-        batched = LocomotionCurveBatched(agent, 1, reward=reward, config=config, autoreset=False)
-        super().__init__(
-            batched, render_mode=render_mode, width=width, height=height, camera=CAMERA
-        )
-        self.observation_names = batched.observation_names
+    batched_class = LocomotionCurveBatched
 
 
 __all__ = [

@@ -63,12 +63,19 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 
 from pved.envs.base import Info
-from pved.envs.batched import BatchOfOneEnv, MujocoBatchedEnv, load_model, split_reward_terms
+from pved.envs.batched import REWARD_MODES as REWARD_MODES
+from pved.envs.batched import (
+    BatchOfOneEnv,
+    load_model,
+    resolve_config,
+    select_reward_terms,
+    split_reward_terms,
+)
+from pved.envs.hinge_arm import HingeArmBatchedEnv, HingeArmReachBatchedEnv
 from pved.errors import PvedError
 
 # ---------------------------------------------------------------- agents
@@ -80,7 +87,6 @@ AGENT_LINK_LENGTHS: dict[str, tuple[float, ...]] = {
 SOURCE_AGENT = "Reacher3"
 TARGET_AGENT = "Reacher4"
 TASKS = ("Reach", "Push")
-REWARD_MODES = ("default", "restricted", "full")
 
 # ---------------------------------------------------------------- shared constants
 TIMESTEP = 0.005  # s, MuJoCo physics step
@@ -193,19 +199,11 @@ def reward_terms(agent: str, task: str, reward: str = "default") -> tuple[str, .
     ``"default"`` and ``"full"`` name.
     """
     _check_agent(agent)
-    if reward not in REWARD_MODES:
-        raise PvedError(f"unknown reward {reward!r}; known: {', '.join(REWARD_MODES)}")
-    if task == "Reach":
-        if reward == "restricted":
-            raise PvedError(
-                "reward 'restricted' exists only for Push; Reach takes 'default'/'full'"
-            )
-        return _REACH_TERMS
-    if task == "Push":
-        if reward == "default":
-            reward = "restricted" if agent == TARGET_AGENT else "full"
-        return _PUSH_FULL_TERMS if reward == "full" else _PUSH_RESTRICTED_TERMS
-    raise PvedError(f"unknown Reacher task {task!r}; known tasks: {', '.join(TASKS)}")
+    full = _REACH_TERMS if task == "Reach" else _PUSH_FULL_TERMS
+    target_agent = agent == TARGET_AGENT
+    return select_reward_terms(
+        reward, task, TASKS, "Reacher", target_agent, full, _PUSH_RESTRICTED_TERMS
+    )
 
 
 # ---------------------------------------------------------------- kinematics
@@ -256,24 +254,21 @@ def push_settled(
 
 
 # ---------------------------------------------------------------- batched envs
-class _ReacherBatched(MujocoBatchedEnv):
-    """State and observation of the robot part, common to both tasks."""
+class _ReacherBatched(HingeArmBatchedEnv):
+    """State and observation of the robot part, common to both tasks; the arm's end
+    point is the fingertip ``ee`` (joints ``joint0``.. from the root)."""
 
     config: ReacherConfig
+    end_name = "ee"
+    end_key = "ee_pos"
 
     def __init__(
         self, config: ReacherConfig, task: str, num_envs: int, reward: str, autoreset: bool
     ) -> None:
-        links = _check_agent(config.agent)
-        self.agent = config.agent
-        self.task = task
-        self.reward_mode = reward
-        self.reward_terms = reward_terms(config.agent, task, reward)
-        if config.timestep <= 0 or config.frame_skip < 1 or config.episode_steps < 1:
-            raise PvedError("timestep must be > 0, frame_skip and episode_steps >= 1")
+        n = len(_check_agent(config.agent))
+        terms = reward_terms(config.agent, task, reward)
+        self._check_timing(config)
         model = load_model(f"{config.agent.lower()}_{task.lower()}.xml")
-        model.opt.timestep = config.timestep
-        n = len(links)
         self.n_links = n
         self.link_lengths = self._asset_link_lengths(model, n)
         if not np.allclose(self.link_lengths, config.link_lengths, rtol=0, atol=1e-9):
@@ -281,21 +276,16 @@ class _ReacherBatched(MujocoBatchedEnv):
                 f"config.link_lengths {tuple(config.link_lengths)} do not match the "
                 f"{config.agent} asset {tuple(self.link_lengths.tolist())}"
             )
-        super().__init__(model, num_envs, config.frame_skip, config.episode_steps, autoreset)
-        self.config = config
-        joint_ids = [model.joint(f"joint{k}").id for k in range(n)]
-        self._arm_qpos = np.asarray(model.jnt_qposadr[joint_ids], dtype=np.int64)
-        self._arm_dof = np.asarray(model.jnt_dofadr[joint_ids], dtype=np.int64)
-        self.ee_pos = np.zeros((self.num_envs, 2))
+        names = tuple(f"joint{k}" for k in range(n))
+        rest = np.zeros(n)
+        rest[0] = config.rest_root_angle
+        super().__init__(model, config, task, reward, terms, names, rest, 2, num_envs, autoreset)
         self.ee_vel = np.zeros((self.num_envs, 2))
-        self.robot_state_indices = np.arange(3 * n + 2)
-        self.robot_observation_names: tuple[str, ...] = (
-            *(f"cos_q{k}" for k in range(n)),
-            *(f"sin_q{k}" for k in range(n)),
-            *(f"qvel{k}" for k in range(n)),
-            "ee_x",
-            "ee_y",
-        )
+
+    @property
+    def ee_pos(self) -> np.ndarray:
+        """(N, 2) end-effector xy of each copy (the arm's ``end_pos``)."""
+        return self.end_pos
 
     @staticmethod
     def _asset_link_lengths(model: mujoco.MjModel, n: int) -> np.ndarray:
@@ -307,31 +297,10 @@ class _ReacherBatched(MujocoBatchedEnv):
     def _derive(self, idx: np.ndarray | slice) -> None:
         q = self.qpos[idx][:, self._arm_qpos]
         qd = self.qvel[idx][:, self._arm_dof]
-        self.ee_pos[idx], self.ee_vel[idx] = forward_kinematics(q, qd, self.link_lengths)
-
-    def _robot_obs(self) -> np.ndarray:
-        """(N, 3n + 2): cos q, sin q, qvel, ee xy."""
-        q = self.qpos[:, self._arm_qpos]
-        return np.concatenate(
-            [np.cos(q), np.sin(q), self.qvel[:, self._arm_dof], self.ee_pos], axis=1
-        )
-
-    def _initial_arm(self, uniforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rest pose plus uniform noise from the first 2n columns of ``uniforms``:
-        arm qpos, qvel (k, n). The arm's draws come first in both tasks, so one seed gives
-        one agent the same initial arm state on Reach and on Push."""
-        n, cfg = self.n_links, self.config
-        rest = np.zeros(n)
-        rest[0] = cfg.rest_root_angle
-        q = rest + cfg.init_qpos_noise * (2.0 * uniforms[:, :n] - 1.0)
-        qd = cfg.init_qvel_noise * (2.0 * uniforms[:, n : 2 * n] - 1.0)
-        return q, qd
-
-    def _ctrl_term(self, actions: np.ndarray) -> np.ndarray:
-        return -self.config.ctrl_cost_weight * np.sum(actions * actions, axis=1)
+        self.end_pos[idx], self.ee_vel[idx] = forward_kinematics(q, qd, self.link_lengths)
 
 
-class ReacherReachBatched(_ReacherBatched):
+class ReacherReachBatched(HingeArmReachBatchedEnv, _ReacherBatched):
     """N copies of ``pved/<agent>Reach-v0`` (see the module docstring).
 
     Args:
@@ -352,77 +321,28 @@ class ReacherReachBatched(_ReacherBatched):
         config: ReacherReachConfig | None = None,
         autoreset: bool = True,
     ) -> None:
-        cfg = _resolve_config(agent, "Reach", config)
-        assert isinstance(cfg, ReacherReachConfig)
+        cfg = resolve_config(agent, "Reach", config, ReacherReachConfig, default_config)
         if not 0 <= cfg.target_radius_min < cfg.target_radius_max <= sum(cfg.link_lengths):
             raise PvedError("need 0 <= target_radius_min < target_radius_max <= arm reach")
         super().__init__(cfg, "Reach", num_envs, reward, autoreset)
-        self.target = np.zeros((self.num_envs, 2))
-        self.task_param_keys = ("target",)
-        self.observation_names = (
-            *self.robot_observation_names,
-            "target_x",
-            "target_y",
-            "target_minus_ee_x",
-            "target_minus_ee_y",
-        )
-        dim = len(self.observation_names)
-        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
+        self._init_reach()
 
     @property
     def _num_reset_uniforms(self) -> int:
         return 2 * self.n_links + 2  # arm, then target radius and angle
 
-    def _validate_options(self, options: dict[str, Any]) -> dict[str, np.ndarray]:
-        unknown = set(options) - {"target"}
-        if unknown:
-            raise PvedError(f"unknown reset option(s) {sorted(unknown)}; Reach takes 'target'")
-        return {"target": self._batched_option("target", options["target"], (2,))}
-
-    def _initial_state(
-        self, idx: np.ndarray, uniforms: np.ndarray, options: dict[str, np.ndarray] | None
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _draw_target(self, task_u: np.ndarray) -> np.ndarray:
         cfg = self.config
-        q, qd = self._initial_arm(uniforms)
-        task_u = uniforms[:, 2 * self.n_links :]
         # Uniform by area in the annulus: r^2 uniform between the squared radii.
         r2 = cfg.target_radius_min**2 + task_u[:, 0] * (
             cfg.target_radius_max**2 - cfg.target_radius_min**2
         )
         theta = 2.0 * np.pi * task_u[:, 1]
-        target = np.sqrt(r2)[:, None] * np.stack([np.cos(theta), np.sin(theta)], axis=1)
-        if options is not None and "target" in options:
-            target = options["target"][idx]
-        self.target[idx] = target
-        return q, qd  # the Reach model's qpos/qvel are exactly the arm's
-
-    def _get_task_state(self) -> dict[str, np.ndarray]:
-        return {"target": self.target.copy()}
-
-    def _set_task_state(self, state: dict[str, np.ndarray]) -> None:
-        self.target = np.asarray(state["target"], dtype=np.float64).copy()
+        return np.sqrt(r2)[:, None] * np.stack([np.cos(theta), np.sin(theta)], axis=1)
 
     def _write_extra(self, i: int, data: mujoco.MjData) -> None:
         # The target is drawn only; its mocap body follows the task parameter.
         data.mocap_pos[0] = (self.target[i, 0], self.target[i, 1], ARM_Z)
-
-    def _observe(self) -> np.ndarray:
-        return np.concatenate([self._robot_obs(), self.target, self.target - self.ee_pos], axis=1)
-
-    def _evaluate(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, Info]:
-        dist = np.linalg.norm(self.ee_pos - self.target, axis=1)
-        terms = {"dist": -self.config.dist_weight * dist, "ctrl": self._ctrl_term(actions)}
-        reward, info = split_reward_terms(terms, self.reward_terms, self.num_envs)
-        info["is_success"] = dist < self.config.success_dist
-        info["ee_pos"] = self.ee_pos.copy()
-        return reward, np.zeros(self.num_envs, dtype=bool), info
-
-    def _reset_info(self) -> Info:
-        dist = np.linalg.norm(self.ee_pos - self.target, axis=1)
-        return {"is_success": dist < self.config.success_dist, "ee_pos": self.ee_pos.copy()}
-
-    def _task_params(self) -> Info:
-        return {"target": self.target.copy()}
 
 
 class ReacherPushBatched(_ReacherBatched):
@@ -447,8 +367,7 @@ class ReacherPushBatched(_ReacherBatched):
         config: ReacherPushConfig | None = None,
         autoreset: bool = True,
     ) -> None:
-        cfg = _resolve_config(agent, "Push", config)
-        assert isinstance(cfg, ReacherPushConfig)
+        cfg = resolve_config(agent, "Push", config, ReacherPushConfig, default_config)
         lo, hi = -CHANNEL_HALF_LENGTH, CHANNEL_HALF_LENGTH
         start_lo = cfg.button_start_x - cfg.button_start_halfwidth
         start_hi = cfg.button_start_x + cfg.button_start_halfwidth
@@ -468,18 +387,18 @@ class ReacherPushBatched(_ReacherBatched):
         self.button_start = np.zeros((self.num_envs, 2))
         self.settle_count = np.zeros(self.num_envs, dtype=np.int64)
         self.task_param_keys = ("button_start", "goal")
-        self.observation_names = (
-            *self.robot_observation_names,
-            "button_x",
-            "button_y",
-            "button_vx",
-            "goal_x",
-            "goal_y",
-            "button_minus_ee_x",
-            "button_minus_ee_y",
+        self._set_observation_names(
+            (
+                *self.robot_observation_names,
+                "button_x",
+                "button_y",
+                "button_vx",
+                "goal_x",
+                "goal_y",
+                "button_minus_ee_x",
+                "button_minus_ee_y",
+            )
         )
-        dim = len(self.observation_names)
-        self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float64)
 
     def _place_channel(self, cfg: ReacherPushConfig) -> None:
         """Move the channel (button body, walls) to ``channel_y`` and the goal bar to
@@ -524,7 +443,7 @@ class ReacherPushBatched(_ReacherBatched):
         self, idx: np.ndarray, uniforms: np.ndarray, options: dict[str, np.ndarray] | None
     ) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
-        q, qd = self._initial_arm(uniforms)
+        qpos, qvel = self._initial_arm(uniforms)
         task_u = uniforms[:, 2 * self.n_links :]
         start_x = cfg.button_start_x + cfg.button_start_halfwidth * (2.0 * task_u[:, 0] - 1.0)
         start = np.stack([start_x, np.full_like(start_x, cfg.channel_y)], axis=1)
@@ -532,10 +451,6 @@ class ReacherPushBatched(_ReacherBatched):
             start = options["button_start"][idx]
         self.button_start[idx] = start
         self.settle_count[idx] = 0
-        qpos = np.zeros((len(idx), self.model.nq))
-        qvel = np.zeros((len(idx), self.model.nv))
-        qpos[:, self._arm_qpos] = q
-        qvel[:, self._arm_dof] = qd
         qpos[:, self._button_qpos] = start[:, 0]
         return qpos, qvel
 
@@ -586,17 +501,6 @@ class ReacherPushBatched(_ReacherBatched):
         }
 
 
-def _resolve_config(agent: str, task: str, config: ReacherConfig | None) -> ReacherConfig:
-    if config is None:
-        return default_config(agent, task)
-    expected = ReacherReachConfig if task == "Reach" else ReacherPushConfig
-    if not isinstance(config, expected):
-        raise PvedError(f"config for {task} must be a {expected.__name__}")
-    if config.agent != agent:
-        raise PvedError(f"config is for agent {config.agent!r}, not {agent!r}")
-    return config
-
-
 # ---------------------------------------------------------------- Gymnasium form
 class ReacherReachEnv(BatchOfOneEnv):
     """``gymnasium.Env`` of the Reach task (a batch of one, no autoreset).
@@ -616,7 +520,6 @@ class ReacherReachEnv(BatchOfOneEnv):
     ) -> None:
         batched = ReacherReachBatched(agent, 1, reward=reward, config=config, autoreset=False)
         super().__init__(batched, render_mode=render_mode, width=width, height=height)
-        self.observation_names = batched.observation_names
 
 
 class ReacherPushEnv(BatchOfOneEnv):
@@ -637,7 +540,6 @@ class ReacherPushEnv(BatchOfOneEnv):
     ) -> None:
         batched = ReacherPushBatched(agent, 1, reward=reward, config=config, autoreset=False)
         super().__init__(batched, render_mode=render_mode, width=width, height=height)
-        self.observation_names = batched.observation_names
 
 
 __all__ = [
