@@ -46,7 +46,7 @@ LOCO_IDS = [
     "pved/HumanoidCurve-v0",
     "pved/AntCurve-v0",
 ]
-OBS_DIMS = {"Walker2d": (18, 17), "Hopper": (12, 11), "Humanoid": (349, 45), "Ant": (106, 27)}
+OBS_DIMS = {"Walker2d": (18, 17), "Hopper": (12, 11), "Humanoid": (349, 45), "Ant": (28, 27)}
 
 
 def _agent(eid: str) -> str:
@@ -437,6 +437,23 @@ def test_observation_layout_is_the_same_on_both_tasks() -> None:
         assert names[0] == "torso_height" and names[-1] == "local_slope"
         obs, _ = curve.reset(seed=0)
         assert abs(obs[0, 0] - curve.torso_height[0]) < 1e-12  # type: ignore[attr-defined]
+
+
+def test_ant_observes_contact_forces_only_when_asked() -> None:
+    # off by default (PPO did not learn with them); the contact cost is paid either way
+    cfg = dataclasses.replace(default_config("Ant"), extra_observations=True)
+    with_forces = make_batched("pved/AntSlope-v0", 1, config=cfg)
+    without = make_batched("pved/AntSlope-v0", 1)
+    assert with_forces.single_observation_space.shape == (106,)
+    names = with_forces.observation_names  # type: ignore[attr-defined]
+    assert sum(n.startswith("cfrc_ext_") for n in names) == 78
+    assert not any(n.startswith("cfrc_ext_") for n in without.observation_names)  # type: ignore[attr-defined]
+    for env in (with_forces, without):
+        env.reset(seed=0)
+    action = np.full((1, 8), 0.5)
+    for _ in range(3):
+        infos = [env.step(action)[4] for env in (with_forces, without)]
+    assert infos[0]["reward_contact"][0] == infos[1]["reward_contact"][0] < 0.0
 
 
 def test_every_episode_starts_at_x_zero_and_x_position_is_the_distance() -> None:

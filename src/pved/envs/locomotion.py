@@ -57,14 +57,16 @@ Observation (float64), robot part first:
   ``qpos[3:]``; the world z that v5 keeps is replaced by h, which means the same anywhere on
   any terrain), joint velocities ``qvel`` (clipped to +-10 for Walker2d/Hopper as in v5).
   Dimensions: Walker2d 17, Hopper 11, Humanoid 45, Ant 27.
-* v5's extra observations (``extra_observations=True``, v5's defaults): Ant the external
-  contact forces ``cfrc_ext`` of its 13 bodies clipped to [-1, 1] (78; v5's Ant *includes*
-  them by default); Humanoid ``cinert`` (130), ``cvel`` (78), ``qfrc_actuator`` of the joints
-  (17) and ``cfrc_ext`` (78) of its 13 bodies. They are derived quantities (masses, contact
-  forces) rather than the robot's state, so they are not in ``robot_state_indices``.
+* v5's extra observations (``extra_observations``): Humanoid ``cinert`` (130), ``cvel``
+  (78), ``qfrc_actuator`` of the joints (17) and ``cfrc_ext`` (78) of its 13 bodies (on by
+  default, as in v5); Ant the external contact forces ``cfrc_ext`` of its 13 bodies clipped
+  to [-1, 1] (78; off by default, as in v4 and in effect in the paper's Gym, where they
+  read zero: PPO on Ant did not learn with them, docs/decisions.md). They are derived
+  quantities (masses, contact forces) rather than the robot's state, so they are not in
+  ``robot_state_indices``.
 * terrain part: the local slope angle phi(x_torso) (rad) (1).
 
-Observation sizes: Walker2d 18, Hopper 12, Humanoid 349, Ant 106 (27 + 1 without extras).
+Observation sizes: Walker2d 18, Hopper 12, Humanoid 349, Ant 28 (106 with its extras).
 
 Reward terms (v5's weights), reported in ``info`` as ``reward_<term>``:
 ``forward`` = w_f * (x_torso after - before) / dt (Walker2d/Hopper/Ant w_f = 1, Humanoid
@@ -195,7 +197,8 @@ class LocomotionConfig:
         contact_cost_max: upper clip of the contact cost (Humanoid: 10), or None.
         qvel_noise: "uniform" or "normal" (Ant) initial joint-velocity noise.
         obs_qvel_clip: clip of the velocities in the observation (planar: 10), or None.
-        extra_observations: include v5's extra observations (Ant/Humanoid).
+        extra_observations: include v5's extra observations (Humanoid by default; Ant
+            off by default).
         terminate_when_unhealthy: end the episode when unhealthy.
         episode_steps: truncation horizon in control steps.
         slope_deg_range: Slope angle range (deg), drawn uniformly per episode.
@@ -274,6 +277,8 @@ _DEFAULT_CONFIGS: dict[str, LocomotionConfig] = {
         contact_cost_weight=5e-4,
         contact_force_clip=1.0,
         qvel_noise="normal",
+        # v5 observes cfrc_ext; with them PPO's updates on Ant ran away (docs/decisions.md)
+        extra_observations=False,
     ),
 }
 
