@@ -422,6 +422,18 @@ def test_non_finite_loss_raises(monkeypatch: pytest.MonkeyPatch) -> None:
         train_model("pved", x_s, x_t, QUICK, state_dims=(4, 3), progress=False)
 
 
+def test_a_run_without_checkpoint_starts_over_without_its_old_records(tmp_path: Path) -> None:
+    # as left by a kill during its first epochs: records logged, no checkpoint yet
+    x_s, x_t = synthetic_pairs(300)
+    cfg = dataclasses.replace(QUICK, epochs=2, checkpoint_every=2)
+    run = Run(tmp_path / "r", {"exp": 1}, tensorboard=False)
+    run.start()
+    run.log(7, epoch=1)
+    train_model("pved", x_s, x_t, cfg, run, state_dims=(4, 3), progress=False)
+    assert [r["epoch"] for r in run.read_metrics()] == [1, 2]
+    assert 7 not in [r["step"] for r in run.read_metrics()]
+
+
 def test_run_logging_checkpoints_and_exact_resume(tmp_path: Path) -> None:
     x_s, x_t = synthetic_pairs(600)
     cfg = dataclasses.replace(QUICK, epochs=4, checkpoint_every=1)

@@ -316,6 +316,29 @@ def test_resume_from_checkpoint_is_exact(tmp_path: Path, env_cls: type) -> None:
     assert logged == [k * n * 32 for k in range(1, 6)]
 
 
+def test_a_run_killed_before_its_first_checkpoint_starts_over_cleanly(tmp_path: Path) -> None:
+    n = 8
+    cfg = toy_config(total_steps=4 * n * 32, checkpoint_every=10**9, eval_every=n * 32, seed=2)
+
+    def crash_at_3rd_update(policy: Policy, steps: int) -> dict[str, float]:
+        if steps == 3 * n * 32:
+            raise Interrupt
+        return {"score": float(steps)}
+
+    run = Run(tmp_path / "r", {"c": 1})
+    with pytest.raises(Interrupt):
+        train_ppo(PointTarget1D(n), cfg, run, eval_fn=crash_at_3rd_update, progress=False)
+    assert run.latest_checkpoint() is None and run.read_metrics()
+
+    def score(policy: Policy, steps: int) -> dict[str, float]:
+        return {"score": float(steps)}
+
+    train_ppo(PointTarget1D(n), cfg, Run(tmp_path / "r", {"c": 1}), eval_fn=score, progress=False)
+    # the records of the killed attempt are gone: each step is logged once
+    evals = [r["step"] for r in run.read_metrics() if "eval/score" in r]
+    assert evals == [k * n * 32 for k in range(5)]
+
+
 def test_resume_refuses_other_config(tmp_path: Path) -> None:
     cfg = toy_config(checkpoint_every=256)
     train_ppo(PointTarget1D(8), cfg, Run(tmp_path / "r", {"c": 1}), progress=False)

@@ -227,6 +227,18 @@ class Run:
             return []
         return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
+    def drop_metrics_after(self, step: int) -> None:
+        """On resume, forget the ``metrics.jsonl`` records past ``step``, the step of the
+        checkpoint resumed from (-1 when there is none and the run starts over): an
+        interrupted run logged them after its last checkpoint, the resumed run logs those
+        steps again, and learning curves must not count them twice. (TensorBoard events
+        are append-only and keep both.)"""
+        path = self.path / "metrics.jsonl"
+        records = self.read_metrics()
+        kept = [r for r in records if int(r.get("step", 0)) <= step]
+        if len(kept) != len(records):
+            atomic_write_bytes(path, "".join(json.dumps(r) + "\n" for r in kept).encode())
+
     @property
     def checkpoint_dir(self) -> Path:
         return self.path / CHECKPOINT_DIR

@@ -202,6 +202,8 @@ def _train(
             optimizer.load_state_dict(state["optimizer"])
             torch.set_rng_state(state["torch_rng"])
             epoch, step = int(state["epoch"]), int(state["step"])
+        # a run killed before its first checkpoint starts over
+        run.drop_metrics_after(step if state is not None else -1)
 
     def checkpoint() -> None:
         assert run is not None

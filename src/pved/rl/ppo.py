@@ -25,7 +25,6 @@ V of ``info["final_obs"]``; episodes that terminate are not.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 import warnings
@@ -52,7 +51,7 @@ from pved.rl.networks import (
     mlp_forward_np,
 )
 from pved.rl.policy import Policy
-from pved.runs import Run, atomic_write_bytes, to_jsonable
+from pved.runs import Run, to_jsonable
 
 CHECKPOINT_FORMAT = "pved-ppo-checkpoint"
 BACKENDS = ("numpy", "torch")
@@ -825,17 +824,6 @@ class _Trainer:
         return out
 
 
-def _drop_metrics_after(run: Run, step: int) -> None:
-    """On resume, forget ``metrics.jsonl`` records that an interrupted run logged after
-    its last checkpoint: the resumed run logs those steps again, and learning curves
-    must not count them twice. (TensorBoard events are append-only and keep both.)"""
-    path = run.path / "metrics.jsonl"
-    records = run.read_metrics()
-    kept = [r for r in records if int(r.get("step", 0)) <= step]
-    if len(kept) != len(records):
-        atomic_write_bytes(path, "".join(json.dumps(r) + "\n" for r in kept).encode())
-
-
 def train_ppo(
     env: BatchedEnv,
     config: PPOConfig,
@@ -888,10 +876,10 @@ def train_ppo(
         state = run.latest_checkpoint()
     if state is not None:
         trainer.load_state_dict(state)
-        assert run is not None
-        _drop_metrics_after(run, trainer.global_step)
     else:
         trainer.reset_env(config.seed)
+    if run is not None:  # a run killed before its first checkpoint starts over
+        run.drop_metrics_after(trainer.global_step if state is not None else -1)
 
     name = env_id or str(getattr(env, "env_id", type(env).__name__))
     policy = trainer.policy
