@@ -303,6 +303,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         final = entry["final"]
         assert final["mean_ci"][0] <= final["mean"] <= final["mean_ci"][1]
         assert "steps_to_ppo_final" in entry
+        # runs cut short by the kill were redone, not logged twice: one point per step
+        assert entry["curve_steps"] == sorted(set(entry["curve_steps"]))
     selection = json.loads((out / "selection.json").read_text())["reacher"]["pved"]
     assert selection["beta"] in get_preset("reacher").beta_grid
     assert len(selection["candidates"]) == budget.beta_grid_size + budget.model_inits - 1
