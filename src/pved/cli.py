@@ -195,6 +195,16 @@ def _cmd_plot(args: argparse.Namespace) -> None:
         print(path)
 
 
+def _cmd_claims(args: argparse.Namespace) -> None:
+    from pved.analysis.claims import write_claims
+
+    md = write_claims(args.dirs, args.out)
+    for line in md.read_text().splitlines():
+        if line.startswith("## Claim "):
+            print(line.removeprefix("## "))
+    print(md)
+
+
 def _cmd_tsne(args: argparse.Namespace) -> None:
     from pved.experiments.stages import analyze_subspaces
 
@@ -447,6 +457,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")
     p.add_argument("--out", type=Path, help="with several DIRs: one figure of all their pairs")
     p.set_defaults(func=_cmd_plot)
+
+    p = sub.add_parser(
+        "claims",
+        help="verdicts on the paper's seven claims (IV.B) from protocol outputs",
+        description="Judge each of the paper's claims about Fig. 3, part by part and pair "
+        "by pair, as holds / does not hold / undecided with bootstrap CIs over the runs; "
+        "writes claims.json and claims.md. Give each pair's protocol directory once.",
+    )
+    p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")
+    p.add_argument("--out", type=Path, help="where claims.json/md go (default: the first DIR)")
+    p.set_defaults(func=_cmd_claims)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))

@@ -108,6 +108,54 @@ def bootstrap_summary(
     }
 
 
+def bootstrap_difference(
+    a: np.ndarray, b: np.ndarray, reps: int = 2000, seed: int = 0
+) -> dict[str, Any]:
+    """The difference of means between two independent groups of runs, mean(a) − mean(b),
+    with its 95% percentile bootstrap CI; and each group's mean with its own CI from the
+    same resamples.
+
+    ``a`` (n_a,) and ``b`` (n_b,) are per-run scores (e.g. final success rates of two
+    methods on one pair; n_a and n_b may differ). Each of the ``reps`` resamples draws n_a
+    runs of ``a`` and, independently, n_b runs of ``b`` with replacement (the groups are
+    never paired); the interval holds the central 95% of the resampled differences
+    (percentile method, as rliable's). Reproducible for a given ``seed``; numpy's global RNG
+    is not touched.
+
+    Returns ``{"diff": d, "diff_ci": [lo, hi], "a": {"runs": n_a, "mean": m, "mean_ci":
+    [lo, hi]}, "b": {...}}``. A group of one run contributes its value without spread.
+    Raises PvedError for an empty, non-1-D or non-finite group, or ``reps`` < 1.
+
+    Why numpy rather than rliable here: rliable does support this (a list of two arrays
+    in ``get_interval_estimates`` selects its ``StratifiedIndependentBootstrap``), but it
+    runs the resamples in a Python loop, ~0.2 s per call, and judging the paper's claims
+    needs dozens of such intervals; this draws all resamples at once
+    (``np.random.default_rng(seed)``), with the same percentile rule."""
+    if reps < 1:
+        raise PvedError(f"bootstrap needs reps >= 1, got {reps}")
+    groups = {"a": _finite(a, "bootstrap_difference"), "b": _finite(b, "bootstrap_difference")}
+    rng = np.random.default_rng(seed)
+    tail = 100.0 * (1.0 - CI_SIZE) / 2.0
+    result: dict[str, Any] = {}
+    resampled: dict[str, np.ndarray] = {}
+    for name, values in groups.items():
+        if values.ndim != 1:
+            raise PvedError(f"bootstrap_difference wants 1-D run scores, got {values.shape}")
+        # (reps, n) indices: each row is one resample of the group's runs.
+        picks = rng.integers(0, values.size, size=(reps, values.size))
+        resampled[name] = values[picks].mean(axis=1)  # (reps,)
+        lo, hi = np.percentile(resampled[name], [tail, 100.0 - tail])
+        result[name] = {
+            "runs": int(values.size),
+            "mean": float(values.mean()),
+            "mean_ci": [float(lo), float(hi)],
+        }
+    lo, hi = np.percentile(resampled["a"] - resampled["b"], [tail, 100.0 - tail])
+    result["diff"] = float(groups["a"].mean() - groups["b"].mean())
+    result["diff_ci"] = [float(lo), float(hi)]
+    return result
+
+
 @dataclass
 class Curve:
     """One method's curve: ``values`` (runs, points) at env ``steps`` (points,)."""
@@ -149,16 +197,19 @@ def steps_to_reach(curve: Curve, threshold: float) -> int | None:
 
 
 def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, values) of the records in ``metrics.jsonl`` that carry ``key``."""
-    steps, values = [], []
+    """(steps, values) of the records in ``metrics.jsonl`` that carry ``key``, by step.
+
+    A step logged twice keeps its last record: runs resumed by pved before 0de3764 logged
+    the steps they redid again (``Run.drop_metrics_after`` prevents it now)."""
+    last: dict[int, float] = {}
     for line in Path(metrics_path).read_text().splitlines():
         if not line.strip():
             continue
         record = json.loads(line)
         if record.get(key) is not None:
-            steps.append(int(record["step"]))
-            values.append(float(record[key]))
-    return np.asarray(steps), np.asarray(values)
+            last[int(record["step"])] = float(record[key])
+    steps = sorted(last)
+    return np.asarray(steps, dtype=np.int64), np.asarray([last[s] for s in steps], np.float64)
 
 
 def load_curve(method: str, run_dirs: list[Path], seeds: list[int], key: str) -> Curve:
