@@ -88,6 +88,16 @@ def _sign_verdict(ci: Sequence[float], tol: float) -> str:
     return UNDECIDED
 
 
+def _by_sign(part: dict[str, Any], d: dict[str, Any] | None) -> dict[str, Any]:
+    """``part`` with the verdict of its difference's sign (:func:`_sign_verdict`), when
+    there is a difference (``d``) to judge."""
+    if d is not None:
+        part["verdict"] = _sign_verdict(d["diff_ci"], d["tol"])
+        if part["verdict"] == UNDECIDED:
+            part["reason"] = "no significant difference at these runs"
+    return part
+
+
 # ---------------------------------------------------------------------------- inputs
 
 
@@ -294,11 +304,7 @@ class _Judge:
         """``a`` beats ``b``: the CI of mean final(a) − mean final(b) lies above 0."""
         part, d = self._part(f"{a} beats {b}", "beats", pair, a, b, "final")
         part["steps_to_ppo_final"] = _steps_to_ppo_final(self.pairs, pair, (a, b))
-        if d is not None:
-            part["verdict"] = _sign_verdict(d["diff_ci"], d["tol"])
-            if part["verdict"] == UNDECIDED:
-                part["reason"] = "no significant difference at these runs"
-        return part
+        return _by_sign(part, d)
 
     def does_not_beat(self, pair: str, a: str, b: str) -> dict[str, Any]:
         """``a`` does not beat ``b``: holds if "a beats b" is not ``holds`` (decided by
@@ -322,20 +328,12 @@ class _Judge:
     def faster_early(self, pair: str, a: str, b: str) -> dict[str, Any]:
         """``a`` learns faster early than ``b``: CI of mean early(a) − mean early(b) > 0."""
         part, d = self._part(f"{a} faster early than {b}", "faster early", pair, a, b, "early")
-        if d is not None:
-            part["verdict"] = _sign_verdict(d["diff_ci"], d["tol"])
-            if part["verdict"] == UNDECIDED:
-                part["reason"] = "no significant difference at these runs"
-        return part
+        return _by_sign(part, d)
 
     def more_stable(self, pair: str, a: str, b: str) -> dict[str, Any]:
         """``a`` more stable than ``b``: CI of mean drop(b) − mean drop(a) > 0."""
         part, d = self._part(f"{a} more stable than {b}", "more stable", pair, b, a, "drop")
-        if d is not None:
-            part["verdict"] = _sign_verdict(d["diff_ci"], d["tol"])
-            if part["verdict"] == UNDECIDED:
-                part["reason"] = "no significant difference at these runs"
-        return part
+        return _by_sign(part, d)
 
     def _ppo_vs_oracle(self, pair: str, learns: bool) -> dict[str, Any]:
         text = "ppo still learns" if learns else "ppo fails completely"
