@@ -48,34 +48,28 @@ class EnvEntry:
         return f"{NAMESPACE}/{self.agent}{self.task}-v{VERSION}"
 
 
+def _entry(module: str, prefix: str, agent: str, task: str) -> EnvEntry:
+    """The env of ``agent`` on ``task`` from ``pved.envs.<module>``, whose classes are
+    ``<prefix><task>Env`` (Gymnasium) and ``<prefix><task>Batched``."""
+    return EnvEntry(
+        agent=agent,
+        task=task,
+        gym_entry_point=f"pved.envs.{module}:{prefix}{task}Env",
+        batched_entry_point=f"pved.envs.{module}:{prefix}{task}Batched",
+        kwargs={"agent": agent},
+    )
+
+
 def _reacher(agent: str, task: str) -> EnvEntry:
-    return EnvEntry(
-        agent=agent,
-        task=task,
-        gym_entry_point=f"pved.envs.reacher:Reacher{task}Env",
-        batched_entry_point=f"pved.envs.reacher:Reacher{task}Batched",
-        kwargs={"agent": agent},
-    )
-
-
-def _locomotion(agent: str, task: str) -> EnvEntry:
-    return EnvEntry(
-        agent=agent,
-        task=task,
-        gym_entry_point=f"pved.envs.locomotion:Locomotion{task}Env",
-        batched_entry_point=f"pved.envs.locomotion:Locomotion{task}Batched",
-        kwargs={"agent": agent},
-    )
+    return _entry("reacher", "Reacher", agent, task)
 
 
 def _arm(agent: str, task: str) -> EnvEntry:
-    return EnvEntry(
-        agent=agent,
-        task=task,
-        gym_entry_point=f"pved.envs.arms:Arm{task}Env",
-        batched_entry_point=f"pved.envs.arms:Arm{task}Batched",
-        kwargs={"agent": agent},
-    )
+    return _entry("arms", "Arm", agent, task)
+
+
+def _locomotion(agent: str, task: str) -> EnvEntry:
+    return _entry("locomotion", "Locomotion", agent, task)
 
 
 _ENTRIES: tuple[EnvEntry, ...] = (
