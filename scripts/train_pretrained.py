@@ -60,6 +60,8 @@ def ship(agent: str, task: str, seed: int, steps: int, runs_root: Path) -> dict[
         "task": task,
         "seed": seed,
         "steps": steps,
+        # less than ``steps`` where the preset's early stop ended training
+        "trained_steps": training.get("trained_steps", steps),
         # with the preset's policy_keep_best: the evaluation point that was kept
         "selected_step": training.get("selected_step", steps),
         "command": f"pved train-policy --agent {agent} --task {task} --seed {seed} --steps {steps}",

@@ -1,4 +1,5 @@
-"""``train_policy`` keeps the best evaluation point when the pair's preset asks for it."""
+"""``train_policy`` keeps the best evaluation point and stops early when the pair's preset
+asks for it."""
 
 from __future__ import annotations
 
@@ -27,7 +28,13 @@ def test_keep_best_saves_the_policy_of_the_best_evaluation(
         eval_every=256,
         checkpoint_every=0,
     )
-    small = dataclasses.replace(preset, policy=ppo, policy_overrides=(), policy_eval_episodes=2)
+    small = dataclasses.replace(
+        preset,
+        policy=ppo,
+        policy_overrides=(),
+        policy_eval_episodes=2,
+        policy_stop_completion=None,
+    )
     monkeypatch.setattr(stages, "preset_for_agent", lambda agent: small)
     # scripted evaluation: the return peaks at the second evaluation point (step 512)
     scripted = {0: 1.0, 256: 5.0, 512: 9.0, 768: 3.0, 1024: 2.0}
@@ -47,3 +54,42 @@ def test_keep_best_saves_the_policy_of_the_best_evaluation(
     assert result["selected_step"] == 512 and result["eval/return_mean"] == 9.0
     assert path.read_bytes() == (path.parent / "best_policy.pt").read_bytes()
     assert load_policy(path).metadata["selected_step"] == 512
+
+
+def test_training_stops_once_enough_evaluations_in_a_row_no_longer_fall(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    preset = get_preset("walker-hopper")
+    assert preset.policy_stop_completion == 0.98 and preset.policy_stop_evaluations == 2
+    ppo = dataclasses.replace(
+        preset.policy_config("Hopper", "Slope"),
+        num_envs=2,
+        steps_per_env=64,
+        minibatch_size=64,
+        eval_every=128,
+        checkpoint_every=0,
+    )
+    small = dataclasses.replace(preset, policy=ppo, policy_overrides=(), policy_eval_episodes=2)
+    monkeypatch.setattr(stages, "preset_for_agent", lambda agent: small)
+    # one evaluation at the bar, a relapse, then two in a row (384 and 512): it ends at 512
+    completion = {0: 0.0, 128: 1.0, 256: 0.9, 384: 0.98, 512: 1.0, 640: 1.0, 768: 1.0}
+    returns = {0: 1.0, 128: 2.0, 256: 3.0, 384: 8.0, 512: 4.0, 640: 5.0, 768: 6.0}
+    seen: list[int] = []
+
+    def fake_eval_fn(*args: Any, **kwargs: Any):
+        def evaluate(policy: Any, env_steps: int) -> dict[str, float]:
+            seen.append(env_steps)
+            return {
+                "eval/return_mean": returns[env_steps],
+                "eval/completion_rate": completion[env_steps],
+            }
+
+        return evaluate
+
+    monkeypatch.setattr(stages, "_eval_fn", fake_eval_fn)
+    path = stages.train_policy("Hopper", "Slope", steps=2048, runs_root=tmp_path, progress=False)
+    assert seen == [0, 128, 256, 384, 512]
+    result = json.loads((path.parent / "result.json").read_text())
+    assert result["steps"] == 2048 and result["trained_steps"] == 512
+    # the best return among the points evaluated is still the one kept
+    assert result["selected_step"] == 384

@@ -152,7 +152,23 @@ def train_policy(
                 atomic_write_json(best_stats, {"step": env_steps, **stats})
         return stats
 
-    policy = train_ppo(env, ppo, run, eval_fn=evaluate_and_keep_best, progress=progress)
+    def no_longer_falls() -> bool:
+        """The preset's early stop: the last ``policy_stop_evaluations`` evaluations (read
+        back from the run, so that a resumed run counts those before it) all completed
+        at least ``policy_stop_completion`` of their episodes."""
+        if preset.policy_stop_completion is None:
+            return False
+        rates = [
+            r["eval/completion_rate"] for r in run.read_metrics() if "eval/completion_rate" in r
+        ]
+        last = rates[-preset.policy_stop_evaluations :]
+        return len(last) == preset.policy_stop_evaluations and all(
+            rate >= preset.policy_stop_completion for rate in last
+        )
+
+    policy = train_ppo(
+        env, ppo, run, eval_fn=evaluate_and_keep_best, stop_fn=no_longer_falls, progress=progress
+    )
     if preset.policy_keep_best and best_stats.exists():
         best = json.loads(best_stats.read_text())
         atomic_write_bytes(policy_file, best_file.read_bytes())
@@ -161,7 +177,16 @@ def train_policy(
     else:
         final = {k: v for k, v in run.read_metrics()[-1].items() if k.startswith("eval/")}
         policy.save(policy_file, metadata)
-    run.finish({"policy": str(policy_file), "env_id": name, "steps": ppo.total_steps, **final})
+    trained = int(policy.metadata.get("training_steps", ppo.total_steps))
+    run.finish(
+        {
+            "policy": str(policy_file),
+            "env_id": name,
+            "steps": ppo.total_steps,
+            "trained_steps": trained,
+            **final,
+        }
+    )
     return policy_file
 
 

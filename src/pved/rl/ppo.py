@@ -830,6 +830,7 @@ def train_ppo(
     run: Run | None = None,
     *,
     eval_fn: EvalFn | None = None,
+    stop_fn: Callable[[], bool] | None = None,
     progress: bool = True,
     env_id: str | None = None,
 ) -> Policy:
@@ -857,6 +858,9 @@ def train_ppo(
             ``eval/`` (keys already starting with ``eval/`` are kept as they are).
             It must not step ``env`` (use its own env) so that training stays
             reproducible.
+        stop_fn: called after each evaluation before the last (once its result is
+            logged); True ends training there, and the policy of that point is the one
+            returned and saved.
         progress: show a tqdm progress bar.
         env_id: name stored in the policy's metadata (default: the env's ``env_id``
             attribute or class name).
@@ -894,12 +898,13 @@ def train_ppo(
         desc="PPO",
     )
 
-    def maybe_eval(final: bool) -> None:
+    def maybe_eval(final: bool) -> bool:
+        """Evaluate when due (or at the end); True when ``stop_fn`` ends training."""
         if eval_fn is None:
-            return
+            return False
         due = trainer.global_step >= trainer.next_eval
         if not (due or final):
-            return
+            return False
         if due:
             interval = config.eval_every if config.eval_every > 0 else total + 1
             while trainer.next_eval <= trainer.global_step:
@@ -909,6 +914,7 @@ def train_ppo(
         result = {k if k.startswith("eval/") else f"eval/{k}": float(v) for k, v in raw.items()}
         if run is not None and result:
             run.log(trainer.global_step, **result)
+        return not final and stop_fn is not None and stop_fn()
 
     try:
         if trainer.global_step == 0:
@@ -937,8 +943,8 @@ def train_ppo(
             bar.update(config.batch_size)
 
             last = trainer.update >= config.num_updates
-            if not last:
-                maybe_eval(final=False)
+            if not last and maybe_eval(final=False):
+                break
             if (
                 run is not None
                 and config.checkpoint_every > 0
@@ -947,7 +953,8 @@ def train_ppo(
                 while trainer.next_checkpoint <= trainer.global_step:
                     trainer.next_checkpoint += config.checkpoint_every
                 run.save_checkpoint(trainer.global_step, trainer.state_dict())
-        maybe_eval(final=True)
+        else:
+            maybe_eval(final=True)
     finally:
         bar.close()
 
