@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean reproduce
+.PHONY: demo test lint system-deps clean reproduce publish
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -24,6 +24,15 @@ METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2
 reproduce: $(STAMP)
 	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
 		--out reports/$(PAIR)-$(BUDGET)
+
+# Copy a finished protocol's summaries and figures (not its runs) into docs/protocol/,
+# where they are committed, then judge the paper's claims on every published pair.
+publish:
+	mkdir -p docs/protocol/$(PAIR)-$(BUDGET)
+	cp reports/$(PAIR)-$(BUDGET)/protocol.json reports/$(PAIR)-$(BUDGET)/selection.json \
+		reports/$(PAIR)-$(BUDGET)/summary.json reports/$(PAIR)-$(BUDGET)/summary.md \
+		reports/$(PAIR)-$(BUDGET)/curves-$(PAIR).png docs/protocol/$(PAIR)-$(BUDGET)/
+	$(VENV)/bin/pved claims $(wildcard reports/*-$(BUDGET)) --out docs/protocol/claims-$(BUDGET)
 
 test: $(STAMP) lint
 	$(PY) -m pytest -q
