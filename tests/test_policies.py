@@ -73,18 +73,20 @@ def test_keep_best_saves_the_policy_of_the_best_evaluation(
     assert load_policy(path).metadata["selected_step"] == 512
 
 
-def test_training_stops_once_enough_evaluations_in_a_row_no_longer_fall(
+def test_training_stops_once_it_neither_falls_nor_improves(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     preset = _use_small_hopper_preset(monkeypatch, 128)
     assert preset.policy_stop_completion == 0.98 and preset.policy_stop_evaluations == 2
-    # one evaluation at the bar, a relapse, then two in a row (384 and 512): it ends at 512
+    assert preset.policy_stop_gain == 0.02
+    # one evaluation at the bar, a relapse, then two in a row (384 and 512) while the
+    # return still grows 12%, and a third (640) where it does not: training ends at 640
     completion = {0: 0.0, 128: 1.0, 256: 0.9, 384: 0.98, 512: 1.0, 640: 1.0, 768: 1.0}
-    returns = {0: 1.0, 128: 2.0, 256: 3.0, 384: 8.0, 512: 4.0, 640: 5.0, 768: 6.0}
+    returns = {0: 1.0, 128: 2.0, 256: 3.0, 384: 8.0, 512: 9.0, 640: 8.9, 768: 9.5}
     seen = _script_evaluations(monkeypatch, returns, completion)
     path = stages.train_policy("Hopper", "Slope", steps=2048, runs_root=tmp_path, progress=False)
-    assert seen == [0, 128, 256, 384, 512]
+    assert seen == [0, 128, 256, 384, 512, 640]
     result = json.loads((path.parent / "result.json").read_text())
-    assert result["steps"] == 2048 and result["trained_steps"] == 512
+    assert result["steps"] == 2048 and result["trained_steps"] == 640
     # the best return among the points evaluated is still the one kept
-    assert result["selected_step"] == 384
+    assert result["selected_step"] == 512

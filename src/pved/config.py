@@ -80,11 +80,14 @@ class PairPreset:
     policy_keep_best: bool = False
     policy_eval_episodes: int = 100
     # Stop a policy's training once ``policy_stop_evaluations`` evaluations in a row have
-    # ``completion_rate`` >= ``policy_stop_completion`` (None: train every step): the
-    # Humanoid's steps are dear on CPUs, and a policy that no longer falls has nothing
-    # left to learn for the no-fall bar (docs/decisions.md).
+    # ``completion_rate`` >= ``policy_stop_completion`` and the last of them raised the
+    # mean return by less than ``policy_stop_gain`` (a fraction) over the one before
+    # (None: train every step). The Humanoid's steps are dear on CPUs; a policy that
+    # neither falls nor still improves (e.g. walks farther) has little left to gain, while
+    # one that only learned to stand up still does (docs/decisions.md).
     policy_stop_completion: float | None = None
     policy_stop_evaluations: int = 2
+    policy_stop_gain: float = 0.02
     # The protocol's grid for the shaping weight (beta of Eq. 10; Gupta's alpha), searched
     # on the tuning seeds (paper IV.A; the paper does not print its grid). Per-method
     # grids in ``method_beta_grids`` replace it for that method.

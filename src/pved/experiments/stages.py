@@ -152,22 +152,31 @@ def train_policy(
                 atomic_write_json(best_stats, {"step": env_steps, **stats})
         return stats
 
-    def no_longer_falls() -> bool:
+    def no_longer_falls_nor_improves() -> bool:
         """The preset's early stop: the last ``policy_stop_evaluations`` evaluations (read
         back from the run, so that a resumed run counts those before it) all completed
-        at least ``policy_stop_completion`` of their episodes."""
+        at least ``policy_stop_completion`` of their episodes, and the last one's mean
+        return exceeds the one before by less than ``policy_stop_gain`` of it."""
         if preset.policy_stop_completion is None:
             return False
-        rates = [
-            r["eval/completion_rate"] for r in run.read_metrics() if "eval/completion_rate" in r
-        ]
-        last = rates[-preset.policy_stop_evaluations :]
-        return len(last) == preset.policy_stop_evaluations and all(
-            rate >= preset.policy_stop_completion for rate in last
+        evals = [r for r in run.read_metrics() if "eval/completion_rate" in r]
+        last = evals[-max(preset.policy_stop_evaluations, 2) :]
+        if len(last) < max(preset.policy_stop_evaluations, 2):
+            return False
+        steady = all(
+            r["eval/completion_rate"] >= preset.policy_stop_completion
+            for r in last[-preset.policy_stop_evaluations :]
         )
+        before, now = last[-2]["eval/return_mean"], last[-1]["eval/return_mean"]
+        return steady and now - before < preset.policy_stop_gain * abs(before)
 
     policy = train_ppo(
-        env, ppo, run, eval_fn=evaluate_and_keep_best, stop_fn=no_longer_falls, progress=progress
+        env,
+        ppo,
+        run,
+        eval_fn=evaluate_and_keep_best,
+        stop_fn=no_longer_falls_nor_improves,
+        progress=progress,
     )
     if preset.policy_keep_best and best_stats.exists():
         best = json.loads(best_stats.read_text())
