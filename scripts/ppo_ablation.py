@@ -12,10 +12,11 @@ observe its contact forces")::
     .venv/bin/python scripts/ppo_ablation.py --agent Ant --extra 0 --steps 600000
     .venv/bin/python scripts/ppo_ablation.py --agent Humanoid --extra 1 --steps 400000
 
-A PPO recipe ("Humanoid's PPO recipe")::
+A PPO recipe ("Humanoid's PPO")::
 
-    .venv/bin/python scripts/ppo_ablation.py --agent Humanoid --steps 1500000 \
-        --set hidden_sizes=256,256 --set lr=1e-4 --set minibatch_size=512
+    .venv/bin/python scripts/ppo_ablation.py --agent Humanoid --steps 2000000 \
+        --set lr=1e-4 --set minibatch_size=512 --set init_log_std=-1 \
+        --set hidden_sizes=256,256
 """
 
 from __future__ import annotations
