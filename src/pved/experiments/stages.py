@@ -157,17 +157,12 @@ def train_policy(
         back from the run, so that a resumed run counts those before it) all completed
         at least ``policy_stop_completion`` of their episodes, and the last one's mean
         return exceeds the one before by less than ``policy_stop_gain`` of it."""
-        if preset.policy_stop_completion is None:
-            return False
+        bar, count = preset.policy_stop_completion, preset.policy_stop_evaluations
         evals = [r for r in run.read_metrics() if "eval/completion_rate" in r]
-        last = evals[-max(preset.policy_stop_evaluations, 2) :]
-        if len(last) < max(preset.policy_stop_evaluations, 2):
+        if bar is None or len(evals) < max(count, 2):
             return False
-        steady = all(
-            r["eval/completion_rate"] >= preset.policy_stop_completion
-            for r in last[-preset.policy_stop_evaluations :]
-        )
-        before, now = last[-2]["eval/return_mean"], last[-1]["eval/return_mean"]
+        before, now = evals[-2]["eval/return_mean"], evals[-1]["eval/return_mean"]
+        steady = all(r["eval/completion_rate"] >= bar for r in evals[-count:])
         return steady and now - before < preset.policy_stop_gain * abs(before)
 
     policy = train_ppo(
