@@ -18,21 +18,24 @@ demo: $(STAMP)
 	$(VENV)/bin/pved demo
 
 # The paper's protocol on one pair with every method: make reproduce PAIR=reacher BUDGET=quick
+# (WORKERS=1 leaves the other cores free; rerunning the same command resumes)
 PAIR    ?= reacher
 BUDGET  ?= quick
 METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2017 ppo oracle
 reproduce: $(STAMP)
 	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
-		--out reports/$(PAIR)-$(BUDGET)
+		--out reports/$(PAIR)-$(BUDGET) $(if $(WORKERS),--workers $(WORKERS))
 
 # Copy a finished protocol's summaries and figures (not its runs) into docs/protocol/,
-# where they are committed, then judge the paper's claims on every published pair.
+# where they are committed, then judge the paper's claims on every finished pair (one
+# whose protocol is still running has no summary.json yet and is left out).
 publish:
 	mkdir -p docs/protocol/$(PAIR)-$(BUDGET)
 	cp reports/$(PAIR)-$(BUDGET)/protocol.json reports/$(PAIR)-$(BUDGET)/selection.json \
 		reports/$(PAIR)-$(BUDGET)/summary.json reports/$(PAIR)-$(BUDGET)/summary.md \
 		reports/$(PAIR)-$(BUDGET)/curves-$(PAIR).png docs/protocol/$(PAIR)-$(BUDGET)/
-	$(VENV)/bin/pved claims $(wildcard reports/*-$(BUDGET)) --out docs/protocol/claims-$(BUDGET)
+	$(VENV)/bin/pved claims $(patsubst %/summary.json,%,$(wildcard reports/*-$(BUDGET)/summary.json)) \
+		--out docs/protocol/claims-$(BUDGET)
 
 test: $(STAMP) lint
 	$(PY) -m pytest -q
