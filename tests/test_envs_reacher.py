@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import warnings
 
 os.environ.setdefault("MUJOCO_GL", "osmesa")
@@ -73,6 +75,31 @@ def test_render_follows_the_target() -> None:
     right = env.render()
     assert not np.array_equal(left, right)
     env.close()
+
+
+def test_render_without_a_gl_context_names_the_fix() -> None:
+    """MuJoCo's default (windowed) GL backend with no display gives one PvedError that
+    says to set MUJOCO_GL, not a FatalError from deep inside the renderer."""
+    code = (
+        "import gymnasium as gym, pved\n"
+        "from pved.errors import PvedError\n"
+        "env = gym.make('pved/Reacher3Reach-v0', render_mode='rgb_array', width=32, height=32)\n"
+        "env.reset(seed=0)\n"
+        "try:\n"
+        "    env.render()\n"
+        "except PvedError as err:\n"
+        "    print('PvedError:', err)\n"
+    )
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY", "PYOPENGL_PLATFORM")
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("PvedError: cannot render") and "MUJOCO_GL=osmesa" in out.stdout
 
 
 # ---------------------------------------------------------------- batched == single

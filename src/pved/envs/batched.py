@@ -23,6 +23,7 @@ hinge joints of the Reacher and robot-arm pairs share more, in :mod:`pved.envs.h
 
 from __future__ import annotations
 
+import os
 from abc import abstractmethod
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -509,7 +510,14 @@ class BatchOfOneEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         model = self.batched.model
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(model, height=self._height, width=self._width)
+            try:
+                self._renderer = mujoco.Renderer(model, height=self._height, width=self._width)
+            except mujoco.FatalError as err:
+                # without a display MuJoCo's default GL backend has no context to open
+                raise PvedError(
+                    f"cannot render: {err}; on a machine without a display set "
+                    f"MUJOCO_GL=osmesa or egl (MUJOCO_GL is {os.environ.get('MUJOCO_GL')!r})"
+                ) from None
             self._scratch = mujoco.MjData(model)
         assert self._scratch is not None
         live = self.batched.datas[0]
