@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean reproduce publish
+.PHONY: demo test lint system-deps clean reproduce publish subspaces
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -26,7 +26,12 @@ reproduce: $(STAMP)
 	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
 		--out reports/$(PAIR)-$(BUDGET) $(if $(WORKERS),--workers $(WORKERS))
 
-# Copy a finished protocol's summaries and figures (not its runs) into docs/protocol/,
+# "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
+# PVED's best evaluation run, into reports/<pair>-<budget>/subspaces/
+subspaces: $(STAMP)
+	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
+
+# Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
 # where they are committed, then judge the paper's claims on every finished pair (one
 # whose protocol is still running has no summary.json yet and is left out).
 publish:
@@ -34,6 +39,10 @@ publish:
 	cp reports/$(PAIR)-$(BUDGET)/protocol.json reports/$(PAIR)-$(BUDGET)/selection.json \
 		reports/$(PAIR)-$(BUDGET)/summary.json reports/$(PAIR)-$(BUDGET)/summary.md \
 		reports/$(PAIR)-$(BUDGET)/curves-$(PAIR).png docs/protocol/$(PAIR)-$(BUDGET)/
+	if [ -d reports/$(PAIR)-$(BUDGET)/subspaces ]; then \
+		mkdir -p docs/protocol/$(PAIR)-$(BUDGET)/subspaces && \
+		cp reports/$(PAIR)-$(BUDGET)/subspaces/tsne/* reports/$(PAIR)-$(BUDGET)/subspaces/bound.txt \
+			reports/$(PAIR)-$(BUDGET)/subspaces/chosen.json docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(patsubst %/summary.json,%,$(wildcard reports/*-$(BUDGET)/summary.json)) \
 		--out docs/protocol/claims-$(BUDGET)
 

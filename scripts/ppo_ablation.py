@@ -30,6 +30,7 @@ import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import torch  # noqa: E402
 
@@ -79,7 +80,7 @@ def main() -> None:
 
     never = 10**12
     base = preset_for_agent(args.agent).policy_config(args.agent, args.task)
-    overrides = dict(parse_override(text, base) for text in args.set)
+    overrides: dict[str, Any] = dict(parse_override(text, base) for text in args.set)
     ppo = dataclasses.replace(
         base, **overrides, total_steps=args.steps, eval_every=never, checkpoint_every=never
     )

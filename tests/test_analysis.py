@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
 # Headless rendering (the t-SNE mark strips and videos render frames); without it this file
 # passes only when another test module that sets it was collected first.
-os.environ.setdefault("MUJOCO_GL", "osmesa")
-
 import numpy as np
 import pytest
 import torch

@@ -3,10 +3,7 @@ workspace and task options."""
 
 from __future__ import annotations
 
-import os
 import warnings
-
-os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import gymnasium as gym
 import mujoco

@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import warnings
-
-os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import gymnasium as gym
 import mujoco

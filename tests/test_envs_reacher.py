@@ -7,8 +7,6 @@ import subprocess
 import sys
 import warnings
 
-os.environ.setdefault("MUJOCO_GL", "osmesa")
-
 import gymnasium as gym
 import numpy as np
 import pytest

@@ -67,6 +67,20 @@ if TYPE_CHECKING:
 PLAN_FILE = "protocol.json"
 
 
+def indexed_policy(agent: str, task: str, index: int, runs: Path) -> tuple[Path, int, bool]:
+    """The protocol's ``index``-th policy of ``agent`` on ``task``: the shipped ones in seed
+    order (a seed that missed its bar is not shipped), then runs under ``runs`` that train
+    the seeds not shipped, 0, 1, ... Returns (policy file, seed, whether it is shipped)."""
+    shipped = shipped_seeds(agent, task)
+    if index < len(shipped):
+        return pretrained_policy_path(agent, task, shipped[index]), shipped[index], True
+    unshipped = (s for s in itertools.count() if s not in shipped)
+    seed = next(itertools.islice(unshipped, index - len(shipped), None))
+    preset = preset_for_agent(agent)
+    run_dir = run_path(runs, preset.name, "policy", f"{agent}-{task}", seed)
+    return run_dir / "policy.pt", seed, False
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One tuning configuration of a method and its score on the tuning seeds."""
@@ -159,16 +173,13 @@ class ProtocolPlan:
         return grid if size is None else grid[:size]
 
     def _policy(self, agent: str, task: str, index: int) -> tuple[Path, Job | None]:
-        """The ``index``-th policy of ``agent`` on ``task``: the shipped ones in seed order
-        (a seed that missed its bar is not shipped), then runs that train the seeds not
-        shipped, 0, 1, ... (with the job that trains it)."""
-        shipped = shipped_seeds(agent, task)
-        if index < len(shipped):
-            return pretrained_policy_path(agent, task, shipped[index]), None
-        unshipped = (s for s in itertools.count() if s not in shipped)
-        seed = next(itertools.islice(unshipped, index - len(shipped), None))
+        """The ``index``-th policy of ``agent`` on ``task`` (:func:`indexed_policy`), with
+        the job that trains it where it is not shipped."""
+        path, seed, shipped = indexed_policy(agent, task, index, self.runs)
+        if shipped:
+            return path, None
         preset = preset_for_agent(agent)
-        run_dir = run_path(self.runs, preset.name, "policy", f"{agent}-{task}", seed)
+        run_dir = path.parent
         steps = self.budget.policy_steps or preset.policy_config(agent, task).total_steps
         job = Job(
             key=f"policy/{agent}-{task}/seed{seed}",
