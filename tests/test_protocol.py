@@ -78,6 +78,10 @@ def test_plan_selects_beta_then_init_then_evaluates(tmp_path: Path) -> None:
     assert all(j.kwargs["model_path"].parent.name == "seed1" for j in evaluation)
     candidates = plan.selection["reacher"]["pved"]["candidates"]
     assert len(candidates) == len(grid) + 1  # every beta at init 0, then init 1
+    # what the selection waits on goes first: stages, then tuning runs, then evaluations
+    assert {j.priority for j in jobs if "/transfer/" not in j.key} == {0}
+    assert {j.priority for j in tuning + init1} == {1}
+    assert {j.priority for j in evaluation + ppo} == {2}
 
 
 def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> None:
@@ -210,6 +214,35 @@ def test_runner_retries_then_reports_failures_and_blocked_jobs(
     assert report.attempts["b"] == 3 and report.attempts["d"] == 2
     assert report.blocked == ["c"]
     assert "this run always fails" in (tmp_path / "logs" / "b.txt").read_text()
+
+
+def _record(log: str, key: str) -> str:
+    with open(log, "a") as fh:
+        fh.write(key + "\n")
+    return key
+
+
+@pytest.mark.parametrize("backend", ["ray", "processes"])
+def test_runner_runs_no_more_than_its_workers_in_priority_order(
+    tmp_path: Path, backend: str
+) -> None:
+    # one worker: the order the jobs ran in is the order they were submitted in, so a
+    # runner that queued every ready job at once would run them in the plan's order
+    if backend == "ray":
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    log = str(tmp_path / "order.txt")
+    jobs = [
+        Job("evaluation", _record, {"log": log, "key": "evaluation"}, priority=2),
+        Job("tuning", _record, {"log": log, "key": "tuning"}, priority=1),
+        Job("stage", _record, {"log": log, "key": "stage"}, priority=0),
+        Job("after-stage", _record, {"log": log, "key": "after-stage"}, deps=("stage",)),
+    ]
+    report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend=backend)
+    assert not report.failed
+    # the job that became ready after the first one finished still went ahead (priority 0)
+    assert Path(log).read_text().split() == ["stage", "after-stage", "tuning", "evaluation"]
 
 
 @pytest.mark.parametrize("backend", ["ray", "processes"])

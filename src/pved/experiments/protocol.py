@@ -233,11 +233,15 @@ class ProtocolPlan:
                 bank_path=self._bank_path(pair, source),
             )
         kwargs["run_name"] = name
+        # the selection waits on the tuning runs, and everything on the stages before
+        # them (priority 0); evaluation runs fill the workers left over
+        tuning = method not in REFERENCE_METHODS and seed in b.tuning_seeds
         return Job(
             key=f"{pair}/transfer/{name}/seed{seed}",
             fn=transfer,
             kwargs=kwargs,
             deps=deps,
+            priority=1 if tuning else 2,
             steps=steps,
             run_dir=run_path(self.runs, pair, "transfer", name, seed),
             tags={"source_policy": source, "init": init, "beta": beta},

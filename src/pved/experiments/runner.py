@@ -64,6 +64,9 @@ class Job:
         run_dir: its run directory, when known: ``metrics.jsonl`` there gives the live
             progress and ``result.json`` there says it was finished before this call.
         tags: what the experiment wants to remember about it (not passed to ``fn``).
+        priority: among jobs ready at once, lower goes first (ties: the plan's order). The
+            runner submits no more jobs than the backend has workers, so a job that others
+            wait on can be put ahead of independent ones (shorter wall time on many cores).
     """
 
     key: str
@@ -73,6 +76,7 @@ class Job:
     steps: int = 0
     run_dir: Path | None = None
     tags: Mapping[str, Any] = field(default_factory=dict)
+    priority: int = 0
 
 
 class Planner(Protocol):
@@ -134,6 +138,10 @@ class _Executor(Protocol):
 
     def submit(self, fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any: ...
 
+    def capacity(self) -> int:
+        """How many jobs can run at once now (the runner submits no more)."""
+        ...
+
     def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         """The handles among ``handles`` that have finished (at least one, or none after
         ``timeout`` seconds)."""
@@ -173,6 +181,10 @@ class _RayExecutor:
 
     def submit(self, fn: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
         return self.remote_call.remote(fn, kwargs)
+
+    def capacity(self) -> int:
+        # the cluster's CPUs as they are now: a cluster that grows gets more jobs
+        return max(1, int(self.ray.cluster_resources().get("CPU", 1)))
 
     def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         ready, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
@@ -235,6 +247,9 @@ class _ProcessExecutor:
         future = self.pool.submit(_call, fn, kwargs)
         self.pools[future] = self.pool
         return future
+
+    def capacity(self) -> int:
+        return self.workers
 
     def wait(self, handles: list[Any], timeout: float) -> list[Any]:
         done, _ = concurrent.futures.wait(
@@ -431,15 +446,20 @@ def _run(
                 known[job.key] = job
         running_keys = {j.key for j in in_flight.values()}
         blocked = set(blocked_keys())
-        for job in known.values():
-            if (
-                job.key not in results
-                and job.key not in failed
-                and job.key not in running_keys
-                and job.key not in blocked
-                and all(d in results for d in job.deps)
-            ):
-                submit(job)
+        ready = [
+            job
+            for job in known.values()
+            if job.key not in results
+            and job.key not in failed
+            and job.key not in running_keys
+            and job.key not in blocked
+            and all(d in results for d in job.deps)
+        ]
+        # only as many as can run: a job that becomes ready later with a lower priority
+        # (e.g. the runs a selection waits on) is not queued behind independent ones
+        free = executor.capacity() - len(in_flight)
+        for job in sorted(ready, key=lambda j: j.priority)[: max(0, free)]:
+            submit(job)
         if view is not None:
             pending = len(known) - len(results) - len(failed) - len(in_flight)
             view.update(
