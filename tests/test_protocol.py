@@ -372,6 +372,30 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         assert f"{method}: its first evaluation run" in report
     assert report.count('src="data:image/gif;base64,') == 2
 
+    # "what the subspaces learned" of PVED's best evaluation run (`make subspaces`)
+    sub = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "subspaces_report.py"),
+            str(out),
+            "--episodes",
+            "2",
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert sub.returncode == 0, sub.stderr[-3000:]
+    chosen = json.loads((out / "subspaces" / "chosen.json").read_text())
+    pved_runs = methods["pved"]["runs"]
+    assert chosen["final"] == max(r["success_rate"] for r in pved_runs)
+    assert chosen["run"] in {r["key"] for r in pved_runs}
+    assert f"seed{selection['init']}" == Path(chosen["model"]).name
+    assert "Theorem 1" in (out / "subspaces" / "bound.txt").read_text()
+    for name in ("tsne_shared.png", "tsne_individual.png", "numbers.json"):
+        assert (out / "subspaces" / "tsne" / name).stat().st_size > 0
+    assert "Theorem 1" in (out / "subspaces" / "report.html").read_text()
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
