@@ -184,15 +184,20 @@ def _dies_once(marker: str) -> str:
     return "second life"
 
 
+def _ship_this_module_to(backend: str) -> None:
+    """Ray's workers import functions by module, and this test module is not importable
+    there: send its functions by value."""
+    if backend == "ray":
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_retries_then_reports_failures_and_blocked_jobs(
     tmp_path: Path, backend: str
 ) -> None:
-    if backend == "ray":
-        from ray import cloudpickle
-
-        # Ray's workers import functions by module; this test module is not importable there
-        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    _ship_this_module_to(backend)
     jobs = [
         Job("a", _ok, {"value": 3}),
         Job("b", _always_fails),
@@ -228,10 +233,7 @@ def test_runner_runs_no_more_than_its_workers_in_priority_order(
 ) -> None:
     # one worker: the order the jobs ran in is the order they were submitted in, so a
     # runner that queued every ready job at once would run them in the plan's order
-    if backend == "ray":
-        from ray import cloudpickle
-
-        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    _ship_this_module_to(backend)
     log = str(tmp_path / "order.txt")
     jobs = [
         Job("evaluation", _record, {"log": log, "key": "evaluation"}, priority=2),
@@ -248,10 +250,7 @@ def test_runner_runs_no_more_than_its_workers_in_priority_order(
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) -> None:
     # alone in flight: on the process pool a dead worker fails every job the pool held
-    if backend == "ray":
-        from ray import cloudpickle
-
-        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    _ship_this_module_to(backend)
     jobs = [
         Job("f", _dies_once, {"marker": str(tmp_path / "died")}),
         Job("g", _ok, {"value": 6}, deps=("f",)),
