@@ -31,7 +31,7 @@ from typing import Any
 from pved.cli import main as pved
 from pved.config import get_preset
 from pved.experiments.protocol import indexed_policy
-from pved.runs import atomic_write_json, run_path
+from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
 _RUN_KEY = re.compile(
     r"^(?P<pair>[^/]+)/transfer/pved-beta[^/]*-init(?P<init>\d+)-src(?P<src>\d+)/seed\d+$"
@@ -59,7 +59,7 @@ def run(cmd: list[str], stdout: Path | None = None) -> None:
     if code:
         raise SystemExit(code)
     if stdout:
-        stdout.write_text(buffer.getvalue())
+        atomic_write_bytes(stdout, buffer.getvalue().encode())
 
 
 def main() -> None:
@@ -87,7 +87,11 @@ def main() -> None:
     runs_root = args.protocol / "runs"
     model = run_path(runs_root, pair, "model", "pved", init)
     source, source_seed, _ = indexed_policy(preset.source_agent, preset.target_task, src, runs_root)
-    target = Path(chosen["result"]).parent
+    # under DIR/runs, not the absolute path in the summary: a protocol directory copied
+    # back from another machine still works
+    target = runs_root / chosen["key"]
+    if not (target / "policy.pt").is_file():
+        sys.exit(f"{target}: no policy.pt (the run's files are not in this directory)")
 
     out = args.protocol / "subspaces"
     out.mkdir(exist_ok=True)
