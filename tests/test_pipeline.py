@@ -213,6 +213,17 @@ def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -
     assert config["config"]["ppo"]["eval_every"] == get_preset("reacher").transfer.eval_every
 
 
+@pytest.mark.parametrize("pair", ["walker-hopper", "humanoid-ant"])
+def test_locomotion_curve_points_take_one_batched_pass(pair: str) -> None:
+    # Paper IV.A's metric is the final score over 100 episodes; a curve point on 100
+    # 1000-step episodes would cost twice the training between points (decisions.md).
+    from pved.config import EVAL_NUM_ENVS, get_preset
+
+    transfer = get_preset(pair).transfer
+    assert transfer.final_eval_episodes == 100
+    assert transfer.eval_episodes == EVAL_NUM_ENVS
+
+
 @pytest.mark.parametrize(
     ("pair", "source", "target", "training", "target_task", "metric"),
     [

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from pved import __version__
-from pved.config import PairPreset, get_preset, preset_for_agent
+from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import env_id, get_entry
 from pved.errors import PvedError
@@ -50,7 +50,6 @@ from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
 DEFAULT_RUNS = Path("runs")
-EVAL_NUM_ENVS = 16
 
 
 def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
