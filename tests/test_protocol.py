@@ -247,6 +247,41 @@ def test_runner_runs_no_more_than_its_workers_in_priority_order(
     assert Path(log).read_text().split() == ["stage", "after-stage", "tuning", "evaluation"]
 
 
+def test_live_view_rate_leaves_out_the_steps_of_earlier_calls(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    import io
+
+    from pved.experiments import runner
+
+    clock = iter([0.0, 10.0, 20.0])
+    monkeypatch.setattr(runner.time, "monotonic", lambda: next(clock))
+    view = runner.LiveView(tmp_path / "status.json", stream=io.StringIO())  # clock 0
+    # 10 s in, a restart has found 1M steps of finished runs on disk: no rate yet
+    first = view.update(1, 1, 0, 5, 1_000_000, 3_000_000, earlier_steps=1_000_000)
+    assert first["steps_per_s"] == 0.0 and first["eta_s"] is None
+    # 10 s later this call has trained 5,000 steps: 500 steps/s, 1,995,000 steps to go
+    second = view.update(1, 1, 0, 5, 1_005_000, 3_000_000, earlier_steps=1_000_000)
+    assert second["steps_per_s"] == pytest.approx(5_000 / 20)
+    assert second["eta_s"] == pytest.approx(1_995_000 / 250)
+
+
+def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
+    _ship_this_module_to("processes")
+    done, fresh = tmp_path / "done", tmp_path / "fresh"
+    done.mkdir()
+    (done / "result.json").write_text("{}")
+    jobs = [
+        Job("done", _ok, {"value": 1}, steps=1000, run_dir=done),
+        Job("fresh", _ok, {"value": 2}, steps=500, run_dir=fresh),
+    ]
+    status = tmp_path / "status.json"
+    report = run_jobs(_FixedPlan(jobs), workers=1, status_path=status, backend="processes")
+    assert report.reused == ["done"]
+    written = json.loads(status.read_text())
+    assert (written["env_steps"], written["env_steps_earlier"]) == (1500, 1000)
+
+
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) -> None:
     # alone in flight: on the process pool a dead worker fails every job the pool held

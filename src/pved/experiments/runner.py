@@ -294,7 +294,11 @@ def _last_step(metrics: Path) -> int:
 class LiveView:
     """Runs done / running / failed, env steps per second and ETA: one line rewritten
     in place on a terminal, a line every ``every_s`` seconds otherwise; also written to
-    ``status.json`` in the output directory for watching from elsewhere."""
+    ``status.json`` in the output directory for watching from elsewhere.
+
+    The rate counts only the steps trained by this call: a restarted protocol finds
+    hundreds of finished runs (and checkpoints) within minutes, and counting those as
+    progress gave rates of 100k+ steps/s and an ETA of minutes for hours of work."""
 
     def __init__(self, status_path: Path | None, stream: Any = None, every_s: float = 30.0):
         self.status_path = status_path
@@ -314,12 +318,17 @@ class LiveView:
         steps: int,
         total: int,
         force: bool = False,
+        earlier_steps: int = 0,
     ) -> dict[str, Any]:
+        """``steps``: env steps of the finished and running jobs; ``earlier_steps``: the
+        part of them an earlier call trained (finished runs found on disk, and what the
+        resumed runs had reached), left out of the rate."""
         now = time.monotonic()
+        fresh = steps - earlier_steps
         if self.start_steps is None:
-            self.start_steps = steps
+            self.start_steps = fresh
         elapsed = now - self.start
-        rate = (steps - self.start_steps) / elapsed if elapsed > 0 else 0.0
+        rate = (fresh - self.start_steps) / elapsed if elapsed > 0 else 0.0
         eta = (total - steps) / rate if rate > 0 else None
         status = {
             "done": done,
@@ -327,6 +336,7 @@ class LiveView:
             "failed": failed,
             "pending": pending,
             "env_steps": steps,
+            "env_steps_earlier": earlier_steps,
             "env_steps_total": total,
             "steps_per_s": rate,
             "eta_s": eta,
@@ -411,6 +421,8 @@ def _run(
     failed: dict[str, str] = {}
     attempts: dict[str, int] = {}
     reused: list[str] = []
+    # env steps each job had reached before this call (finished on disk, or checkpointed)
+    earlier: dict[str, int] = {}
     in_flight: dict[Any, Job] = {}
     known: dict[str, Job] = {}
     view = LiveView(status_path) if live else None
@@ -420,6 +432,9 @@ def _run(
         if attempts[job.key] == 1 and job.run_dir is not None:
             if (job.run_dir / "result.json").exists():
                 reused.append(job.key)
+                earlier[job.key] = job.steps
+            elif job.steps:
+                earlier[job.key] = min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
         in_flight[executor.submit(job.fn, dict(job.kwargs))] = job
 
     def blocked_keys() -> list[str]:
@@ -469,6 +484,7 @@ def _run(
                 pending,
                 progress_steps(),
                 max(planner.expected_steps(), progress_steps()),
+                earlier_steps=sum(earlier.values()),
             )
         if not in_flight:
             break
@@ -496,6 +512,7 @@ def _run(
             progress_steps(),
             max(planner.expected_steps(), progress_steps()),
             force=True,
+            earlier_steps=sum(earlier.values()),
         )
         view.close()
     return RunnerReport(
