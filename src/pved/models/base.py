@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -180,6 +181,9 @@ class SharedSpaceModel(nn.Module, abc.ABC):
             )
         self.dims = dims
         self.config = config
+        #: Epochs of training done so far (fractional within an epoch), set by the
+        #: trainer before each step; infinite outside training, where no warm-up applies.
+        self.epochs_done = math.inf
         #: Plain facts about this model (pair, dataset, seed...): written by
         #: :func:`pved.models.save_model`, restored by :func:`pved.models.load_model`.
         self.metadata: dict[str, Any] = {}

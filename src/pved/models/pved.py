@@ -81,6 +81,11 @@ class PVEDConfig(ModelConfig):
         leaky_slope: negative slope of the decoders' leaky ReLU (torch's default).
         decoder_variance: "learned" (one log-variance per output dim) or "unit".
         min_decoder_std: floor of a learned decoder std, in standardised units.
+        consistency_warmup_epochs: α3 rises linearly from 0 to its value over this many
+            epochs of training (0: from the start). Not in the paper: without it the
+            consistency term pulls both shared posteriors onto the prior before the
+            decoders use them, and on Walker2d-Hopper they never left it
+            (docs/decisions.md, "Consistency warm-up").
 
     Defaults are the Reacher pair of Table 1 (α1=1, α2=1, α3=10), Adam lr 1e-4, batch 256.
     """
@@ -94,9 +99,16 @@ class PVEDConfig(ModelConfig):
     leaky_slope: float = 0.01
     decoder_variance: str = "learned"
     min_decoder_std: float = 0.01
+    consistency_warmup_epochs: float = 4.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        warmup = self.consistency_warmup_epochs
+        if not (warmup >= 0 and math.isfinite(warmup)):
+            raise PvedError(
+                "config: consistency_warmup_epochs must be a finite number >= 0, "
+                f"got {self.consistency_warmup_epochs}"
+            )
         for name in ("alpha1", "alpha2", "alpha3"):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
@@ -222,12 +234,24 @@ def decoder_from_config(cfg: PVEDConfig, individual_dim: int, out_dim: int) -> D
     )
 
 
-def eq9_objective(cfg: PVEDConfig, parts: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C (to maximise)."""
+def consistency_scale(cfg: PVEDConfig, epochs_done: float) -> float:
+    """The factor on α3 after ``epochs_done`` epochs of training: ``epochs_done /
+    cfg.consistency_warmup_epochs`` until it reaches 1, then 1 (always 1 without warm-up)."""
+    if cfg.consistency_warmup_epochs <= 0:
+        return 1.0
+    return min(1.0, max(0.0, epochs_done) / cfg.consistency_warmup_epochs)
+
+
+def eq9_objective(
+    cfg: PVEDConfig, parts: dict[str, torch.Tensor], epochs_done: float = math.inf
+) -> torch.Tensor:
+    """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C (to maximise),
+    with α3 scaled by :func:`consistency_scale` while ``epochs_done`` is in the warm-up
+    (the default, no epoch count, is the paper's objective)."""
     return (
         cfg.alpha1 * (parts["L_ST"] + parts["L_TS"])
         + cfg.alpha2 * (parts["L_SS"] + parts["L_TT"])
-        + cfg.alpha3 * parts["L_C"]
+        + consistency_scale(cfg, epochs_done) * cfg.alpha3 * parts["L_C"]
     )
 
 
@@ -433,4 +457,4 @@ class PVED(SharedSpaceModel):
 
     def objective(self, parts: dict[str, torch.Tensor]) -> torch.Tensor:
         """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C."""
-        return eq9_objective(self.config, parts)
+        return eq9_objective(self.config, parts, self.epochs_done if self.training else math.inf)

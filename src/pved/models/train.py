@@ -11,6 +11,7 @@ so that an interrupted run continues exactly where it stopped.
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -243,6 +244,7 @@ def _train(
             sums = torch.zeros(0)
             for start in range(0, n_train, config.batch_size):
                 idx = order[start : start + config.batch_size]
+                model.epochs_done = epoch + start / n_train
                 parts = model.loss(xs_train[idx], xt_train[idx])
                 total = parts["total"]
                 if not torch.isfinite(total):
@@ -288,6 +290,7 @@ def _train(
     finally:
         bar.close()
     model.eval()
+    model.epochs_done = math.inf  # trained: any later loss is the paper's objective
     return model
 
 
