@@ -28,6 +28,7 @@ from pved.models import (
     train_model,
 )
 from pved.models.pved import Decoder
+from pved.models.train import shared_subspace_collapsed
 from pved.runs import Run
 
 torch.set_num_threads(1)
@@ -258,14 +259,18 @@ def test_consistency_warmup_keeps_the_shared_subspace_from_collapsing() -> None:
     # prior before the decoders use them (as on Walker2d-Hopper, docs/decisions.md)
     x_s, x_t = synthetic_pairs(3000)
     default = PVEDConfig().consistency_warmup_epochs
-    kl_c = {}
+    kl_c, collapsed = {}, {}
     for warmup in (0.0, default):
         cfg = dataclasses.replace(QUICK, alpha3=10.0, consistency_warmup_epochs=warmup)
         model = train_model("pved", x_s, x_t, cfg, state_dims=(4, 3), progress=False)
         assert model.epochs_done == float("inf")  # trained: the paper's objective from now
-        kl_c[warmup] = float(evaluate_model(model, x_s, x_t)["kl_SS"])
+        parts = evaluate_model(model, x_s, x_t)
+        kl_c[warmup] = parts["kl_SS"]
+        collapsed[warmup] = shared_subspace_collapsed(parts)
     # measured: 0.008 nats without warm-up, 0.14 with the default 4 epochs
     assert default > 0 and kl_c[0.0] < 0.03 and kl_c[default] > 0.08, kl_c
+    assert collapsed == {0.0: True, default: False}
+    assert not shared_subspace_collapsed({"sqdist_C": 0.0})  # no KL terms: not judged
 
 
 def test_each_part_and_the_wiring_of_every_decoder() -> None:

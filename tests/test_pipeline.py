@@ -39,6 +39,14 @@ def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return runs
 
 
+def test_model_result_says_whether_the_shared_subspace_collapsed(pipeline: Path) -> None:
+    from pved.models.train import shared_subspace_collapsed
+
+    result = json.loads((pipeline / "reacher/model/pved/seed0/result.json").read_text())
+    val = {k.removeprefix("val/"): v for k, v in result.items() if k.startswith("val/")}
+    assert "kl_SS" in val and result["shared_collapsed"] is shared_subspace_collapsed(val)
+
+
 def test_every_stage_writes_its_run_directory(pipeline: Path) -> None:
     root = pipeline / "reacher"
     for stage in (

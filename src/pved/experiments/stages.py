@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from pved.errors import PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, model_class, save_model
+from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, dtw_indices
 from pved.pairing.align import align as align_steps
@@ -415,7 +417,22 @@ def train_model(
         },
     )
     last = run.read_metrics()[-1] if run.read_metrics() else {}
-    run.finish({"model": str(out), **{k: v for k, v in last.items() if k != "step"}})
+    val = {k.removeprefix("val/"): v for k, v in last.items() if k.startswith("val/")}
+    collapsed = shared_subspace_collapsed(val)
+    if collapsed:
+        warnings.warn(
+            f"{model} on {pair}: both shared posteriors sit on the prior (validation KL of c "
+            f"below {COLLAPSE_NATS} nats), so its shaping reward is zero; see "
+            "docs/decisions.md, 'Consistency warm-up'",
+            stacklevel=2,
+        )
+    run.finish(
+        {
+            "model": str(out),
+            **{k: v for k, v in last.items() if k != "step"},
+            "shared_collapsed": collapsed,
+        }
+    )
     return out
 
 

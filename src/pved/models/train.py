@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
 import numpy as np
@@ -86,6 +86,21 @@ def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, n
             f"only {n} paired rows: too few for a training split with val_fraction {val_fraction}"
         )
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+COLLAPSE_NATS = 0.01
+"""Below this KL to the prior (nats per row) a shared posterior carries nothing."""
+
+
+def shared_subspace_collapsed(parts: Mapping[str, float]) -> bool:
+    """True when both shared posteriors, q(c|x_S) and q(c|x_T), sit on the prior N(0, I):
+    their KLs to it (``kl_SS`` and ``kl_TT``, e.g. from :func:`evaluate_model` or a run's
+    ``val/`` metrics without the prefix) are below :data:`COLLAPSE_NATS`. c then says
+    nothing about either agent, and Eq. 10's reward, the KL between the two, is zero
+    whatever the agents do. False for models without these terms (det-shared, Gupta)."""
+    if "kl_SS" not in parts or "kl_TT" not in parts:
+        return False
+    return max(float(parts["kl_SS"]), float(parts["kl_TT"])) < COLLAPSE_NATS
 
 
 @torch.no_grad()
