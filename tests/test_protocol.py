@@ -378,6 +378,11 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     for name in ("curves.png", "curves-reacher.png", "summary.md", "status.json"):
         assert (out / name).stat().st_size > 0
     assert "| pved |" in (out / "summary.md").read_text()
+    # the selected model's collapse check is carried into the summary (none for PPO)
+    assert isinstance(methods["pved"]["shared_collapsed"], bool)
+    assert "shared_collapsed" not in methods["ppo"]
+    flagged = any(m.get("shared_collapsed") for m in methods.values())
+    assert ("(collapsed)" in (out / "summary.md").read_text()) == flagged
     # finished runs are not redone: their results are the very same files
     for run_dir, (mtime, content) in finished_before.items():
         result = run_dir / "result.json"

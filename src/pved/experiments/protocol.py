@@ -611,6 +611,12 @@ def _summarize(
             state = plan.selection.get(pair, {}).get(method, {})
             if "beta" in state:
                 entry.update(beta=state["beta"], init=state.get("init"))
+            if state.get("init") is not None:
+                model_dir = run_path(plan.runs, pair, "model", method, state["init"])
+                if (model_dir / "result.json").exists():
+                    model_result = json.loads((model_dir / "result.json").read_text())
+                    if "shared_collapsed" in model_result:  # not Gupta's, nor older runs'
+                        entry["shared_collapsed"] = model_result["shared_collapsed"]
             if done:
                 scores = np.array([results[j.key][f"final/{metric}"] for j in done], float)
                 entry["final"] = bootstrap_summary(scores)
@@ -692,6 +698,8 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
                 reach = "not reached"
             beta = m.get("beta", "–")
             init = m.get("init", "–")
+            if m.get("shared_collapsed"):  # its shaping reward is zero: plain PPO in effect
+                init = f"{init} (collapsed)"
             lines.append(
                 f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
                 f"{reach} | {beta} | {init} |"
