@@ -266,6 +266,28 @@ def test_live_view_rate_leaves_out_the_steps_of_earlier_calls(
     assert second["eta_s"] == pytest.approx(1_995_000 / 250)
 
 
+def _starts_over(run_dir: str) -> str:
+    # what Run.start does to a run left under another config: its records are deleted
+    metrics = Path(run_dir) / "metrics.jsonl"
+    metrics.unlink()
+    metrics.write_text(json.dumps({"step": 300}) + "\n")
+    time.sleep(2.0)  # in flight long enough to be seen at step 300
+    return "done"
+
+
+def test_runner_does_not_count_a_run_that_starts_over_as_earlier_work(tmp_path: Path) -> None:
+    _ship_this_module_to("processes")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "metrics.jsonl").write_text(json.dumps({"step": 5000}) + "\n")
+    job = Job("run", _starts_over, {"run_dir": str(run_dir)}, steps=10_000, run_dir=run_dir)
+    status = tmp_path / "status.json"
+    run_jobs(_FixedPlan([job]), workers=1, status_path=status, backend="processes", poll_s=0.1)
+    written = json.loads(status.read_text())
+    # the 5,000 steps it had logged before were thrown away, not resumed from
+    assert written["env_steps"] == 10_000 and written["env_steps_earlier"] <= 300
+
+
 def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
     _ship_this_module_to("processes")
     done, fresh = tmp_path / "done", tmp_path / "fresh"

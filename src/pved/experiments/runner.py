@@ -452,7 +452,13 @@ def _run(
         steps = sum(known[k].steps for k in results if k in known)
         for job in in_flight.values():
             if job.run_dir is not None and job.steps:
-                steps += min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
+                reached = min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
+                steps += reached
+                # A run under another config starts over (its old records are deleted),
+                # and a resumed one goes back to its checkpoint: what counts as earlier
+                # work is the least it has shown since this call submitted it.
+                if job.key in earlier and job.key not in reused:
+                    earlier[job.key] = min(earlier[job.key], reached)
         return steps
 
     while True:
