@@ -270,8 +270,10 @@ def _starts_over(run_dir: str) -> str:
     # what Run.start does to a run left under another config: its records are deleted
     metrics = Path(run_dir) / "metrics.jsonl"
     metrics.unlink()
+    (Path(run_dir) / "result.json").unlink()
     metrics.write_text(json.dumps({"step": 300}) + "\n")
     time.sleep(2.0)  # in flight long enough to be seen at step 300
+    (Path(run_dir) / "result.json").write_text("{}")
     return "done"
 
 
@@ -279,13 +281,18 @@ def test_runner_does_not_count_a_run_that_starts_over_as_earlier_work(tmp_path: 
     _ship_this_module_to("processes")
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    (run_dir / "metrics.jsonl").write_text(json.dumps({"step": 5000}) + "\n")
+    # a finished run of another config (the restart after a config change)
+    (run_dir / "metrics.jsonl").write_text(json.dumps({"step": 10_000}) + "\n")
+    (run_dir / "result.json").write_text('{"config_hash": "old"}')
     job = Job("run", _starts_over, {"run_dir": str(run_dir)}, steps=10_000, run_dir=run_dir)
     status = tmp_path / "status.json"
-    run_jobs(_FixedPlan([job]), workers=1, status_path=status, backend="processes", poll_s=0.1)
+    report = run_jobs(
+        _FixedPlan([job]), workers=1, status_path=status, backend="processes", poll_s=0.1
+    )
     written = json.loads(status.read_text())
-    # the 5,000 steps it had logged before were thrown away, not resumed from
+    # the 10,000 steps it had logged before were thrown away, not reused or resumed from
     assert written["env_steps"] == 10_000 and written["env_steps_earlier"] <= 300
+    assert report.reused == []
 
 
 def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
@@ -293,6 +300,7 @@ def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
     done, fresh = tmp_path / "done", tmp_path / "fresh"
     done.mkdir()
     (done / "result.json").write_text("{}")
+    (done / "metrics.jsonl").write_text(json.dumps({"step": 1000}) + "\n")
     jobs = [
         Job("done", _ok, {"value": 1}, steps=1000, run_dir=done),
         Job("fresh", _ok, {"value": 2}, steps=500, run_dir=fresh),

@@ -423,6 +423,9 @@ def _run(
     reused: list[str] = []
     # env steps each job had reached before this call (finished on disk, or checkpointed)
     earlier: dict[str, int] = {}
+    # result.json as found at submission: a job that writes a new one (its old one was
+    # under another config) was redone, not reused
+    found_results: dict[str, int] = {}
     in_flight: dict[Any, Job] = {}
     known: dict[str, Job] = {}
     view = LiveView(status_path) if live else None
@@ -430,10 +433,10 @@ def _run(
     def submit(job: Job) -> None:
         attempts[job.key] = attempts.get(job.key, 0) + 1
         if attempts[job.key] == 1 and job.run_dir is not None:
-            if (job.run_dir / "result.json").exists():
-                reused.append(job.key)
-                earlier[job.key] = job.steps
-            elif job.steps:
+            result_file = job.run_dir / "result.json"
+            if result_file.exists():
+                found_results[job.key] = result_file.stat().st_mtime_ns
+            if job.steps:
                 earlier[job.key] = min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
         in_flight[executor.submit(job.fn, dict(job.kwargs))] = job
 
@@ -457,7 +460,7 @@ def _run(
                 # A run under another config starts over (its old records are deleted),
                 # and a resumed one goes back to its checkpoint: what counts as earlier
                 # work is the least it has shown since this call submitted it.
-                if job.key in earlier and job.key not in reused:
+                if job.key in earlier:
                     earlier[job.key] = min(earlier[job.key], reached)
         return steps
 
@@ -498,6 +501,10 @@ def _run(
             job = in_flight.pop(handle)
             try:
                 results[job.key] = executor.result(handle)
+                if job.key in found_results and job.run_dir is not None:
+                    result_file = job.run_dir / "result.json"
+                    if result_file.stat().st_mtime_ns == found_results[job.key]:
+                        reused.append(job.key)
             except Exception as err:  # a stage error or a dead worker: retry, then report
                 message = _one_line(err)
                 if log_dir is not None:
