@@ -269,7 +269,7 @@ def _locomotion_preset(
         # Paper IV.A: mean distance along x in 1000 steps over 100 episodes, the final
         # score. The learning curve's points take one episode per evaluation copy: 100
         # 1000-step episodes every 50k steps cost twice the training's own env steps
-        # (docs/decisions.md, "Evaluation episodes").
+        # (docs/decisions.md, "Evaluation episodes on the locomotion pairs").
         transfer=TransferConfig(
             beta=beta, eval_episodes=EVAL_NUM_ENVS, final_eval_episodes=100, ppo=ppo
         ),

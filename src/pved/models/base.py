@@ -190,6 +190,12 @@ class SharedSpaceModel(nn.Module, abc.ABC):
         self.source_norm = Standardizer(dims.source_dim)
         self.target_norm = Standardizer(dims.target_dim)
 
+    @property
+    def warmup_epochs_done(self) -> float:
+        """Where training stands for a term that warms up: ``epochs_done`` in training
+        mode, infinite otherwise (validation and use see the full objective)."""
+        return self.epochs_done if self.training else math.inf
+
     # -- layout ------------------------------------------------------------------------
     @property
     def source_dim(self) -> int:

@@ -457,4 +457,4 @@ class PVED(SharedSpaceModel):
 
     def objective(self, parts: dict[str, torch.Tensor]) -> torch.Tensor:
         """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C."""
-        return eq9_objective(self.config, parts, self.epochs_done if self.training else math.inf)
+        return eq9_objective(self.config, parts, self.warmup_epochs_done)

@@ -21,7 +21,6 @@ The readings chosen where the paper is terse are in ``docs/decisions.md``.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 import torch
@@ -237,9 +236,7 @@ class PVEDDetShared(SharedSpaceModel):
         parts["L_SS"] = parts["loglik_SS"]
         parts["L_TT"] = parts["loglik_TT"]
         parts["L_C"] = -0.5 * parts["sqdist_C"]
-        parts["total"] = -eq9_objective(
-            self.config, parts, self.epochs_done if self.training else math.inf
-        )
+        parts["total"] = -eq9_objective(self.config, parts, self.warmup_epochs_done)
         return parts
 
 
