@@ -36,6 +36,7 @@ from pved.models import (
     save_model,
     train_model,
 )
+from pved.models.pved_numpy import numpy_trainable
 from pved.runs import Run
 
 torch.set_num_threads(1)
@@ -406,7 +407,8 @@ def test_save_load_round_trip(name: str, trained: dict, tmp_path: Path) -> None:
     assert torch.load(path, weights_only=True)["name"] == name
     loaded = load_model(path, expected_dims=model.dims)
     assert type(loaded) is CLASSES[name] and loaded.config == model.config
-    assert loaded.metadata == {"pair": "synthetic"}
+    backend = "numpy" if numpy_trainable(model) else "torch"  # recorded by training
+    assert loaded.metadata == {"pair": "synthetic", "train_backend": backend}
     x_s, x_t = paired_rows(64, seed=4)
     xs, xt = torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
     with torch.no_grad():

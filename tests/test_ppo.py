@@ -16,10 +16,10 @@ from pved.envs.gym_adapter import GymnasiumBatch
 from pved.envs.hopper_v5 import HopperV5Batch
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
+from pved.flat import FlatAdam
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import (
-    FlatAdam,
     PPOConfig,
     _Trainer,
     compute_gae,

@@ -431,6 +431,7 @@ def train_model(
             "model": str(out),
             **{k: v for k, v in last.items() if k != "step"},
             "shared_collapsed": collapsed,
+            "train_backend": fitted.metadata.get("train_backend"),
         }
     )
     return out

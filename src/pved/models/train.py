@@ -18,14 +18,18 @@ from contextlib import contextmanager
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from pved.errors import PvedError
 from pved.models.base import ModelConfig, ModelDims, SharedSpaceModel
+from pved.models.pved import PVED
+from pved.models.pved_numpy import PART_NAMES, PVEDNumpyStep, numpy_trainable
 from pved.models.registry import build_model, load_model, model_class, save_model
 from pved.runs import Run
 
 __all__ = [
+    "BACKENDS",
     "evaluate_model",
     "load_model",  # re-exported: weights files belong with training for most callers
     "save_model",
@@ -35,14 +39,22 @@ __all__ = [
 CHECKPOINT_FORMAT = "pved-train-checkpoint"
 
 
+#: How :func:`train_model` can compute the gradient: by hand in numpy
+#: (:mod:`pved.models.pved_numpy`, for models whose loss is PVED's; others use autograd)
+#: or with torch autograd for every model.
+BACKENDS = ("numpy", "torch")
+
+
 @contextmanager
 def single_thread() -> Iterator[None]:
-    """Run the block with one torch thread (runs are parallelised side by side, DESIGN.md
-    "Principles"), restoring the previous setting afterwards."""
+    """Run the block with one torch thread and one BLAS thread for numpy (runs are
+    parallelised side by side, DESIGN.md "Principles"; a second BLAS thread on a busy
+    core made the numpy step 6x slower, measured), restoring the settings afterwards."""
     previous = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        yield
+        with threadpool_limits(limits=1, user_api="blas"):
+            yield
     finally:
         torch.set_num_threads(previous)
 
@@ -146,6 +158,7 @@ def train_model(
     *,
     state_dims: tuple[int, int],
     progress: bool = True,
+    backend: str = "numpy",
 ) -> SharedSpaceModel:
     """Train model ``name`` on raw paired rows and return it (in eval mode).
 
@@ -161,6 +174,11 @@ def train_model(
         state_dims: (state dim of x_S, state dim of x_T): the leading entries of each row
             that are the robot state; the rest are the action.
         progress: show a tqdm bar over epochs.
+        backend: ``"numpy"`` computes the gradient of the PVED family's loss by hand
+            (:mod:`pved.models.pved_numpy`: the same objective, noise and Adam update, about
+            twice as fast; other models use autograd), ``"torch"`` uses autograd for every
+            model. Checkpoints are the same either way, so a run may resume under the
+            other backend; ``model.metadata["train_backend"]`` says which one trained.
 
     Torch runs on one thread for the call (restored after) and its global RNG is seeded
     with ``config.seed`` (initialisation, sampling noise), so a run is reproducible.
@@ -182,9 +200,11 @@ def train_model(
         raise PvedError(
             f"state_dims must be (source_state_dim, target_state_dim), got {state_dims}"
         )
+    if backend not in BACKENDS:
+        raise PvedError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     dims = ModelDims(int(xs.shape[1]), int(xt.shape[1]), int(state_dims[0]), int(state_dims[1]))
     with single_thread():
-        return _train(name, xs, xt, dims, config, run, progress)
+        return _train(name, xs, xt, dims, config, run, progress, backend)
 
 
 def _train(
@@ -195,6 +215,7 @@ def _train(
     config: ModelConfig,
     run: Run | None,
     progress: bool,
+    backend: str,
 ) -> SharedSpaceModel:
     fingerprint = data_fingerprint(xs, xt)
     train_idx, val_idx = split_indices(xs.shape[0], config.val_fraction, config.seed)
@@ -221,8 +242,19 @@ def _train(
         # a run killed before its first checkpoint starts over
         run.drop_metrics_after(step if state is not None else -1)
 
+    numpy_step: PVEDNumpyStep | None = None
+    if backend == "numpy" and isinstance(model, PVED) and numpy_trainable(model):
+        numpy_step = PVEDNumpyStep(model, config.lr, config.grad_clip)
+        numpy_step.load_from(optimizer)
+        with torch.no_grad():  # standardised once: the statistics are fixed from here on
+            fs_train = np.ascontiguousarray(model.features_source(xs_train).numpy())
+            ft_train = np.ascontiguousarray(model.features_target(xt_train).numpy())
+    model.metadata["train_backend"] = "numpy" if numpy_step is not None else "torch"
+
     def checkpoint() -> None:
         assert run is not None
+        if numpy_step is not None:
+            numpy_step.save_to(optimizer)
         run.save_checkpoint(
             step,
             {
@@ -256,30 +288,33 @@ def _train(
                 np.random.default_rng([config.seed, epoch]).permutation(n_train)
             )
             keys: list[str] = []
-            sums = torch.zeros(0)
+            sums = np.zeros(0)
             for start in range(0, n_train, config.batch_size):
                 idx = order[start : start + config.batch_size]
                 model.epochs_done = epoch + start / n_train
-                parts = model.loss(xs_train[idx], xt_train[idx])
-                total = parts["total"]
-                if not torch.isfinite(total):
-                    bad = [k for k, v in parts.items() if not torch.isfinite(v)]
+                if numpy_step is not None:
+                    rows = idx.numpy()
+                    keys = list(PART_NAMES)
+                    values = numpy_step.step(fs_train[rows], ft_train[rows], model.epochs_done)
+                else:
+                    parts = model.loss(xs_train[idx], xt_train[idx])
+                    keys = list(parts)
+                    values = torch.stack([v.detach() for v in parts.values()]).double().numpy()
+                    if math.isfinite(values[keys.index("total")]):
+                        optimizer.zero_grad(set_to_none=True)
+                        parts["total"].backward()
+                        if config.grad_clip is not None:
+                            torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+                        optimizer.step()
+                if not math.isfinite(values[keys.index("total")]):
+                    bad = [k for k, v in zip(keys, values, strict=True) if not math.isfinite(v)]
                     raise PvedError(
                         f"training {name} diverged: non-finite loss at epoch {epoch + 1}, "
                         f"step {step + 1} (non-finite parts: {', '.join(bad)}); try a "
                         "lower lr or check the data"
                     )
-                optimizer.zero_grad(set_to_none=True)
-                total.backward()
-                if config.grad_clip is not None:
-                    torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
-                optimizer.step()
                 step += 1
-                values = torch.stack([v.detach() for v in parts.values()]) * idx.shape[0]
-                if not keys:
-                    keys, sums = list(parts), values
-                else:
-                    sums = sums + values
+                sums = values * idx.shape[0] + (sums if sums.size else 0.0)
             epoch += 1
             train_means = dict(zip(keys, (sums / n_train).tolist(), strict=True))
             val_means = (

@@ -1,10 +1,10 @@
-"""Actor-critic networks, their flat parameter buffer, and a numpy forward/backward.
+"""Actor-critic networks and a numpy forward/backward.
 
 The networks are ordinary ``torch.nn`` modules (so that they save as state dicts, load
 with ``weights_only=True`` and can be used in torch code by anyone), but PPO trains them
 through a hand-written numpy forward and backward pass over the *same memory*: every
-parameter is a view into one contiguous float32 buffer, and ``FlatParams`` exposes that
-buffer and its per-tensor views to numpy.
+parameter is a view into one contiguous float32 buffer, and ``pved.flat.FlatParams``
+exposes that buffer and its per-tensor views to numpy.
 
 Why by hand: PPO's networks here are tiny (two or three layers of 64 units) and its
 minibatches small (64 rows). At that size torch's per-operator dispatch and autograd
@@ -130,7 +130,7 @@ class ActorCritic(nn.Module):
 
     def ordered_parameters(self) -> list[nn.Parameter]:
         """Actor layers (W, b, ...), critic layers, then log_std: the layout of
-        :class:`FlatParams` (``parameters()`` would put log_std first)."""
+        :class:`pved.flat.FlatParams` (``parameters()`` would put log_std first)."""
         return [*self.actor.parameters(), *self.critic.parameters(), self.log_std]
 
 
@@ -139,57 +139,11 @@ class ActorCritic(nn.Module):
 # ----------------------------------------------------------------------------------------
 
 
-class FlatParams:
-    """Re-homes the given parameters into one contiguous float32 buffer.
-
-    After construction the parameters *are* slices of :attr:`flat` (a torch
-    tensor) whose numpy twin is :attr:`flat_np`; :attr:`grad_np` is a gradient buffer of
-    the same layout. The optimiser, gradient clipping and checkpoints then act on one
-    vector instead of a dozen small tensors.
-
-    Attributes:
-        flat: (P,) float32 tensor holding all parameters.
-        flat_np: numpy view of ``flat``.
-        grad_np: (P,) float32 gradient buffer.
-        params_np / grads_np: per-parameter numpy views (parameter shapes), in the
-            order given.
-    """
-
-    def __init__(self, params: Sequence[nn.Parameter]) -> None:
-        params = list(params)
-        total = sum(p.numel() for p in params)
-        self.flat = torch.zeros(total, dtype=torch.float32)
-        self.flat_np: np.ndarray = self.flat.numpy()
-        self.grad_np = np.zeros(total, dtype=np.float32)
-        self.params_np: list[np.ndarray] = []
-        self.grads_np: list[np.ndarray] = []
-        self.slices: list[slice] = []
-        offset = 0
-        for p in params:
-            n = p.numel()
-            view = self.flat[offset : offset + n].view_as(p)
-            view.copy_(p.detach())
-            p.data = view  # the parameter now lives in the flat buffer
-            self.params_np.append(self.flat_np[offset : offset + n].reshape(tuple(p.shape)))
-            self.grads_np.append(self.grad_np[offset : offset + n].reshape(tuple(p.shape)))
-            self.slices.append(slice(offset, offset + n))
-            offset += n
-        self.params = params
-
-    def grads_from_torch(self) -> None:
-        """Copy autograd's ``.grad`` of every parameter into :attr:`grad_np`."""
-        for p, g in zip(self.params, self.grads_np, strict=True):
-            if p.grad is None:
-                g.fill(0.0)
-            else:
-                g[...] = p.grad.numpy()
-
-
 def actor_critic_views(
     views: Sequence[np.ndarray], net: ActorCritic
 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
     """Split per-parameter arrays in ``net.ordered_parameters()`` order (e.g.
-    :attr:`FlatParams.params_np` or :attr:`FlatParams.grads_np`) into actor layers
+    :attr:`pved.flat.FlatParams.params_np` or ``grads_np``) into actor layers
     [(W, b), ...], critic layers and log_std."""
     n_actor = 2 * len(net.actor.layers)
     n_critic = 2 * len(net.critic.layers)

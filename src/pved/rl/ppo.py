@@ -12,8 +12,7 @@ Read top to bottom:
 3. :func:`ppo_loss` (torch, differentiable) and :func:`ppo_loss_grad` (numpy, the same
    loss with its gradient in closed form): the clipped surrogate, value loss and entropy
    bonus, pure functions.
-4. :class:`FlatAdam`: Adam over one flat parameter vector (torch's update rule).
-5. :func:`train_ppo`: rollouts with ONE policy forward for all N envs per step,
+4. :func:`train_ppo`: rollouts with ONE policy forward for all N envs per step,
    advantage estimation, epochs of shuffled minibatch updates, logging, checkpoints,
    resume, evaluation.
 
@@ -39,10 +38,10 @@ from tqdm import tqdm
 from pved import __version__
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
+from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.rl.networks import (
     LOG_2PI,
     ActorCritic,
-    FlatParams,
     ObsNormalizer,
     RunningMeanStd,
     actor_critic_views,
@@ -386,71 +385,7 @@ def ppo_loss_grad(
 
 
 # ========================================================================================
-# 4. Optimiser and gradient clipping over one flat vector
-# ========================================================================================
-
-
-class FlatAdam:
-    """Adam (Kingma & Ba) on a flat float32 vector, with torch.optim.Adam's exact update
-    (bias-corrected step size, ε added to the bias-corrected √v). One set of vector ops
-    per step instead of a dozen per-tensor ones."""
-
-    def __init__(self, size: int, eps: float, betas: tuple[float, float] = (0.9, 0.999)) -> None:
-        self.m = np.zeros(size, dtype=np.float32)
-        self.v = np.zeros(size, dtype=np.float32)
-        self.t = 0
-        self.eps = float(eps)
-        self.beta1, self.beta2 = betas
-        self._tmp = np.zeros(size, dtype=np.float32)
-
-    def step(self, params: np.ndarray, grads: np.ndarray, lr: float) -> None:
-        """params, grads: (P,) float32; params updated in place."""
-        self.t += 1
-        b1, b2, tmp = self.beta1, self.beta2, self._tmp
-        self.m += (grads - self.m) * np.float32(1.0 - b1)  # torch: exp_avg.lerp_(grad, 1-b1)
-        self.v *= np.float32(b2)
-        np.multiply(grads, grads, out=tmp)
-        tmp *= np.float32(1.0 - b2)
-        self.v += tmp
-        bias1 = 1.0 - b1**self.t
-        bias2_sqrt = math.sqrt(1.0 - b2**self.t)
-        np.sqrt(self.v, out=tmp)
-        tmp /= np.float32(bias2_sqrt)
-        tmp += np.float32(self.eps)
-        np.divide(self.m, tmp, out=tmp)
-        tmp *= np.float32(-lr / bias1)
-        params += tmp
-
-    def state_dict(self) -> dict[str, Any]:
-        return {
-            "m": torch.from_numpy(self.m.copy()),
-            "v": torch.from_numpy(self.v.copy()),
-            "t": self.t,
-        }
-
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        m, v = state["m"].numpy(), state["v"].numpy()
-        if m.shape != self.m.shape or v.shape != self.v.shape:
-            raise PvedError(
-                f"optimizer state has {m.shape[0]} entries, the networks {self.m.shape[0]}"
-            )
-        self.m[...] = m
-        self.v[...] = v
-        self.t = int(state["t"])
-
-
-def clip_grad_norm_np(grads: np.ndarray, max_norm: float) -> float:
-    """Scale ``grads`` (P,) in place to global norm ≤ max_norm (torch's rule, including
-    its 1e-6); returns the norm before clipping."""
-    norm = math.sqrt(float(np.dot(grads, grads)))
-    coef = max_norm / (norm + 1e-6)
-    if coef < 1.0:
-        grads *= np.float32(coef)
-    return norm
-
-
-# ========================================================================================
-# 5. Training
+# 4. Training
 # ========================================================================================
 
 
