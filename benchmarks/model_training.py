@@ -1,8 +1,8 @@
 """PVED training speed: the numpy backend against torch autograd, in the same run.
 
-Both backends train the same model (``pved``, Table 1's α, batch 256, lr 1e-4, one
-thread) from the same initialisation on the same paired rows, at the Walker2d-Hopper
-pair's widths (x_S = 17 state + 6 action, x_T = 11 + 3); their epochs are timed in
+Both backends train the same model (``pved``, or ``--model``; Table 1's α, batch 256,
+lr 1e-4, one thread) from the same initialisation on the same paired rows, at the
+Walker2d-Hopper pair's widths (x_S = 17 state + 6 action, x_T = 11 + 3); their epochs are timed in
 alternation so that a busy machine slows both alike. Printed: milliseconds per training
 step of each and the last line ``ratio torch/numpy: X.XX`` (>1: numpy is faster). It also
 prints each backend's validation objective after the same steps, which should agree to
@@ -52,10 +52,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=50_000, help="paired rows (90%% train)")
     parser.add_argument("--rounds", type=int, default=3, help="epochs per backend")
+    parser.add_argument("--model", default="pved", help="pved, a pved-* variant, gupta2017")
     args = parser.parse_args()
     torch.set_num_threads(1)
     x_s, x_t = paired_rows(args.rows, seed=0)
-    cfg = get_preset("walker-hopper").model_config("pved", seed=0)
+    cfg = get_preset("walker-hopper").model_config(args.model, seed=0)
     dims = (SOURCE_STATE, TARGET_STATE)
     seconds = {"torch": 0.0, "numpy": 0.0}
     steps = {"torch": 0, "numpy": 0}
@@ -67,7 +68,7 @@ def main() -> None:
                 cfg_now = dataclasses.replace(cfg, epochs=epoch, checkpoint_every=1)
                 started = time.perf_counter()
                 model = train_model(
-                    "pved",
+                    args.model,
                     x_s,
                     x_t,
                     cfg_now,

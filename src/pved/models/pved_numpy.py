@@ -1,11 +1,12 @@
-"""PVED's Eq. 9 objective and its gradient written out in numpy, for training.
+"""The PVED family's Eq. 9 objective and its gradient written out in numpy, for training.
 
-:func:`pved.models.train_model` trains the PVED family (``pved``, ``pved-state-only``,
-``pved-shared-only``, ``pved-vae``: every model whose loss is :meth:`PVED.loss`) through
-:class:`PVEDNumpyStep` by default. It computes the same objective as :meth:`PVED.loss`,
-with the same reparameterisation noise (drawn from torch's global generator in the same
-order and shapes), and applies torch.optim.Adam's update to the same parameter memory;
-only floating-point rounding differs. ``backend="torch"`` trains with autograd instead.
+:func:`pved.models.train_model` trains ``pved``, ``pved-state-only``, ``pved-shared-only``,
+``pved-vae`` (every model whose loss is :meth:`PVED.loss`) and ``pved-det-shared``
+(:meth:`PVEDDetShared.loss`) through :class:`PVEDNumpyStep` by default. It computes the
+same objective as the model's ``loss``, with the same reparameterisation noise (drawn from
+torch's global generator in the same order and shapes), and applies torch.optim.Adam's
+update to the same parameter memory; only floating-point rounding differs.
+``backend="torch"`` trains with autograd instead, as it does ``gupta2017``.
 
 Why by hand: a PVED step at batch 256 is ~150 small operators (four encoder heads, four
 decoders, five Gaussian terms) forward and as many backward, and at these sizes torch's
@@ -33,10 +34,12 @@ from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import LOG_2PI
 from pved.models.pved import ENCODER_LOGVAR_BOUNDS, PVED, PVEDConfig, consistency_scale
+from pved.models.variants import PVEDDetShared
 
-__all__ = ["PART_NAMES", "PVEDNumpyStep", "numpy_trainable"]
+__all__ = ["DET_SHARED_PART_NAMES", "PART_NAMES", "PVEDNumpyStep", "numpy_trainable"]
 
-#: The loss parts :meth:`PVEDNumpyStep.step` returns, in :meth:`PVED.loss`'s order.
+#: The loss parts :meth:`PVEDNumpyStep.step` returns for PVED, its variants with
+#: Gaussian c, in :meth:`PVED.loss`'s order.
 PART_NAMES = (
     "loglik_ST",
     "kl_ST",
@@ -53,6 +56,23 @@ PART_NAMES = (
     "L_C",
     "total",
 )
+#: The same for ``pved-det-shared``, in :meth:`PVEDDetShared.loss`'s order: no prior
+#: KL on the point c, and the squared distance behind its L_C.
+DET_SHARED_PART_NAMES = (
+    "loglik_ST",
+    "kl_ST",
+    "loglik_TS",
+    "kl_TS",
+    "loglik_SS",
+    "loglik_TT",
+    "sqdist_C",
+    "L_ST",
+    "L_TS",
+    "L_SS",
+    "L_TT",
+    "L_C",
+    "total",
+)
 
 Linear = tuple[np.ndarray, np.ndarray]  # (W (out, in), b (out,))
 
@@ -61,13 +81,14 @@ ADAM_EPS = 1e-8
 
 
 def numpy_trainable(model: SharedSpaceModel) -> bool:
-    """True when ``model``'s training loss is PVED's own (Eq. 9 as :meth:`PVED.loss` and
-    :meth:`PVED.objective` compute it), so that :class:`PVEDNumpyStep` computes it too.
-    A subclass that overrides either keeps autograd."""
-    if not isinstance(model, PVED):
-        return False
-    cls = type(model)
-    return cls.loss is PVED.loss and cls.objective is PVED.objective
+    """True when ``model``'s training loss is one :class:`PVEDNumpyStep` computes: PVED's
+    own (:meth:`PVED.loss` and :meth:`PVED.objective`, which its state-only, shared-only
+    and VAE variants inherit) or :meth:`PVEDDetShared.loss`. A subclass that overrides
+    them keeps autograd."""
+    if isinstance(model, PVED):
+        pved_class = type(model)
+        return pved_class.loss is PVED.loss and pved_class.objective is PVED.objective
+    return isinstance(model, PVEDDetShared) and type(model).loss is PVEDDetShared.loss
 
 
 def _sigmoid(z: np.ndarray) -> np.ndarray:
@@ -126,9 +147,9 @@ class _EncoderCache:
     h1: np.ndarray
     pre2: np.ndarray  # (B, H) second trunk layer before ReLU
     h2: np.ndarray
-    mean_c: np.ndarray  # (B, C)
-    logvar_c: np.ndarray
-    dclamp_c: np.ndarray  # d logvar / d raw head output (soft clamp's slope)
+    mean_c: np.ndarray  # (B, C): the posterior's mean, or the point c of pved-det-shared
+    logvar_c: np.ndarray | None  # None for a point
+    dclamp_c: np.ndarray | None  # d logvar / d raw head output (soft clamp's slope)
     mean_y: np.ndarray | None  # (B, Y)
     logvar_y: np.ndarray | None
     dclamp_y: np.ndarray | None
@@ -146,9 +167,11 @@ class _DecoderCache:
 
 
 class _Encoder:
-    """Views of a :class:`pved.models.pved.GaussianEncoder`'s parameters and gradients."""
+    """Views of a :class:`pved.models.pved.GaussianEncoder`'s parameters and gradients,
+    or (``point_c``) of a :class:`pved.models.variants.PointSharedEncoder`'s."""
 
-    def __init__(self, views: _Views, prefix: str) -> None:
+    def __init__(self, views: _Views, prefix: str, point_c: bool) -> None:
+        self.point_c = point_c
         (self.l1, self.g1), (self.l2, self.g2) = (
             views.linear(f"{prefix}.trunk.0"),
             views.linear(f"{prefix}.trunk.2"),
@@ -164,7 +187,10 @@ class _Encoder:
         h1 = np.maximum(pre1, np.float32(0.0))
         pre2 = _linear(h1, self.l2)
         h2 = np.maximum(pre2, np.float32(0.0))
-        mean_c, logvar_c, dclamp_c = _gaussian_head(h2, self.head_c)
+        if self.point_c:
+            mean_c, logvar_c, dclamp_c = _linear(h2, self.head_c), None, None
+        else:
+            mean_c, logvar_c, dclamp_c = _gaussian_head(h2, self.head_c)
         mean_y = logvar_y = dclamp_y = None
         if self.head_y is not None:
             mean_y, logvar_y, dclamp_y = _gaussian_head(h2, self.head_y)
@@ -176,11 +202,14 @@ class _Encoder:
         self,
         cache: _EncoderCache,
         d_mean_c: np.ndarray,
-        d_logvar_c: np.ndarray,
+        d_logvar_c: np.ndarray | None,
         d_mean_y: np.ndarray | None,
         d_logvar_y: np.ndarray | None,
     ) -> None:
-        d_out_c = np.concatenate([d_mean_c, d_logvar_c * cache.dclamp_c], axis=1)
+        d_out_c = d_mean_c
+        if d_logvar_c is not None:
+            assert cache.dclamp_c is not None
+            d_out_c = np.concatenate([d_mean_c, d_logvar_c * cache.dclamp_c], axis=1)
         _linear_backward(cache.h2, d_out_c, self.g_head_c)
         d_h2 = d_out_c @ self.head_c[0]
         if self.head_y is not None:
@@ -316,11 +345,17 @@ class PVEDNumpyStep:
         grad_clip: global gradient-norm bound, or None.
     """
 
-    def __init__(self, model: PVED, lr: float, grad_clip: float | None) -> None:
+    def __init__(self, model: SharedSpaceModel, lr: float, grad_clip: float | None) -> None:
         if not numpy_trainable(model):
             raise PvedError(f"model {model.name!r} has its own loss; train it with autograd")
+        assert isinstance(model.config, PVEDConfig)
         self.model = model
         self.cfg: PVEDConfig = model.config
+        #: pved-det-shared: c is a point, L_C = −½‖c_S − c_T‖² (pved.models.variants).
+        self.point_shared = isinstance(model, PVEDDetShared)
+        #: Eqs. 2 and 6 take the other agent's posterior (False: pved-vae's own).
+        self.crossed = bool(getattr(model, "crossed_posteriors", True))
+        self.part_names = DET_SHARED_PART_NAMES if self.point_shared else PART_NAMES
         self.lr = float(lr)
         self.grad_clip = grad_clip
         names = [name for name, _ in model.named_parameters()]
@@ -329,8 +364,8 @@ class PVEDNumpyStep:
         self.flat = FlatParams(self.params)
         views = _Views(names, self.flat.params_np, self.flat.grads_np)
         self.adam = FlatAdam(self.flat.flat_np.size, eps=ADAM_EPS)
-        self.encoder_S = _Encoder(views, "encoder_S")
-        self.encoder_T = _Encoder(views, "encoder_T")
+        self.encoder_S = _Encoder(views, "encoder_S", self.point_shared)
+        self.encoder_T = _Encoder(views, "encoder_T", self.point_shared)
         self.decoder_T = _Decoder(views, "decoder_T", self.cfg)
         self.decoder_S = _Decoder(views, "decoder_S", self.cfg)
         self.decoder_T_prime = _Decoder(views, "decoder_T_prime", self.cfg)
@@ -341,24 +376,40 @@ class PVEDNumpyStep:
                 f"{', '.join(views.untaken())}"
             )
 
+    @torch.no_grad()
+    def features(self, x_S: torch.Tensor, x_T: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """Raw rows (N, D_S), (N, D_T) -> the standardised entries the networks see, as
+        contiguous float32 arrays ((N, W_S), (N, W_T)), ready for :meth:`step`."""
+        model = self.model
+        if isinstance(model, PVED):
+            fs, ft = model.features_source(x_S), model.features_target(x_T)
+        else:
+            fs, ft = model.standardize_source(x_S), model.standardize_target(x_T)
+        return np.ascontiguousarray(fs.numpy()), np.ascontiguousarray(ft.numpy())
+
     # -- the objective and its gradient ----------------------------------------------------
     def loss_and_grad(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
         """Eq. 9's parts on standardised features xs (B, W_S), xt (B, W_T), in
-        :data:`PART_NAMES` order (batch means, ``total`` = −L with the warm-up's α3), and
+        :attr:`part_names` order (batch means, ``total`` = −L with the warm-up's α3), and
         d total / d parameters written to ``self.flat.grad_np``."""
-        cfg = self.cfg
+        cfg, point = self.cfg, self.point_shared
         batch = xs.shape[0]
         if xt.shape[0] != batch:
             raise PvedError(f"source and target batches differ in size: {batch} vs {xt.shape[0]}")
         self.flat.grad_np.fill(0.0)
         enc_S = self.encoder_S.forward(xs)
         enc_T = self.encoder_T.forward(xt)
-        # The noise PVED.loss draws: torch's global generator, c_S, c_T, y_S, y_T in turn.
-        eps_c_S = torch.randn(enc_S.mean_c.shape).numpy()
-        eps_c_T = torch.randn(enc_T.mean_c.shape).numpy()
-        std_c_S, std_c_T = np.exp(0.5 * enc_S.logvar_c), np.exp(0.5 * enc_T.logvar_c)
-        c_S = enc_S.mean_c + std_c_S * eps_c_S
-        c_T = enc_T.mean_c + std_c_T * eps_c_T
+        # The noise the model's loss draws from torch's generator, in its order: c from
+        # x_S, c from x_T (not for a point c), then y from x_S, y from x_T.
+        c_S, c_T = enc_S.mean_c, enc_T.mean_c
+        eps_c_S = eps_c_T = std_c_S = std_c_T = None
+        if not point:
+            assert enc_S.logvar_c is not None and enc_T.logvar_c is not None
+            eps_c_S = torch.randn(c_S.shape).numpy()
+            eps_c_T = torch.randn(c_T.shape).numpy()
+            std_c_S, std_c_T = np.exp(0.5 * enc_S.logvar_c), np.exp(0.5 * enc_T.logvar_c)
+            c_S = c_S + std_c_S * eps_c_S
+            c_T = c_T + std_c_T * eps_c_T
         y_S = y_T = None
         eps_y_S = eps_y_T = std_y_S = std_y_T = None
         if enc_S.mean_y is not None and enc_T.mean_y is not None:
@@ -369,9 +420,11 @@ class PVEDNumpyStep:
             y_S = enc_S.mean_y + std_y_S * eps_y_S
             y_T = enc_T.mean_y + std_y_T * eps_y_T
 
-        kl_c_S = _kl_standard_normal(enc_S.mean_c, enc_S.logvar_c)
-        kl_c_T = _kl_standard_normal(enc_T.mean_c, enc_T.logvar_c)
-        kl_y_S = kl_y_T = np.zeros_like(kl_c_S)
+        zeros = np.zeros(batch, dtype=np.float32)
+        kl_c_S = kl_c_T = kl_y_S = kl_y_T = zeros  # a point c has no prior term
+        if enc_S.logvar_c is not None and enc_T.logvar_c is not None:
+            kl_c_S = _kl_standard_normal(enc_S.mean_c, enc_S.logvar_c)
+            kl_c_T = _kl_standard_normal(enc_T.mean_c, enc_T.logvar_c)
         if enc_S.mean_y is not None and enc_S.logvar_y is not None:
             kl_y_S = _kl_standard_normal(enc_S.mean_y, enc_S.logvar_y)
         if enc_T.mean_y is not None and enc_T.logvar_y is not None:
@@ -382,7 +435,7 @@ class PVEDNumpyStep:
         a3 = consistency_scale(cfg, epochs_done) * cfg.alpha3 / batch
 
         # Eqs. 2 and 6: crossed (PVED) or own (pved-vae) posteriors into p_θT and p_θS.
-        crossed = self.model.crossed_posteriors
+        crossed = self.crossed
         c_in_T, y_in_T = (c_S, y_S) if crossed else (c_T, y_T)
         c_in_S, y_in_S = (c_T, y_T) if crossed else (c_S, y_S)
         dec_T = self.decoder_T.forward(c_in_T, y_in_T)
@@ -393,13 +446,19 @@ class PVEDNumpyStep:
         ll_TS, d_mean_S = _log_likelihood(xs, self.decoder_S, dec_S, -a1)
         ll_SS, d_mean_Tp = _log_likelihood(xs, self.decoder_T_prime, dec_Tp, -a2)
         ll_TT, d_mean_Sp = _log_likelihood(xt, self.decoder_S_prime, dec_Sp, -a2)
-        # Eq. 7: KL(q(c|x_S) ‖ q(c|x_T)).
+        # Eq. 7: KL(q(c|x_S) ‖ q(c|x_T)), or ½‖c_S − c_T‖² between points.
         diff = enc_S.mean_c - enc_T.mean_c
-        inv_var_T = np.exp(-enc_T.logvar_c)
-        ratio = np.exp(enc_S.logvar_c - enc_T.logvar_c)
-        kl_C = np.float32(0.5) * (
-            ratio + diff * diff * inv_var_T - 1.0 - (enc_S.logvar_c - enc_T.logvar_c)
-        ).sum(axis=1)
+        if point:
+            inv_var_T = ratio = np.ones_like(diff)
+            sqdist = (diff * diff).sum(axis=1)
+            kl_C = np.float32(0.5) * sqdist
+        else:
+            assert enc_S.logvar_c is not None and enc_T.logvar_c is not None
+            inv_var_T = np.exp(-enc_T.logvar_c)
+            ratio = np.exp(enc_S.logvar_c - enc_T.logvar_c)
+            kl_C = np.float32(0.5) * (
+                ratio + diff * diff * inv_var_T - 1.0 - (enc_S.logvar_c - enc_T.logvar_c)
+            ).sum(axis=1)
 
         # -- backward: decoders, then the samples, then the posteriors -------------------
         d_c_in_T, d_y_in_T = self.decoder_T.backward(dec_T, d_mean_T)
@@ -413,20 +472,28 @@ class PVEDNumpyStep:
             d_c_S, d_c_T = d_c_S + d_c_in_S, d_c_T + d_c_in_T
             d_y_S, d_y_T = d_y_in_S, d_y_in_T
 
-        # c = mean + e^(logvar/2)·ε; each c's prior KL weighs α1 (Eq. 2 or 6) + α2 (Eq. 8).
-        kc = np.float32(a1 + a2)
-        d_mean_c_S = d_c_S + kc * enc_S.mean_c + np.float32(a3) * diff * inv_var_T
-        d_mean_c_T = d_c_T + kc * enc_T.mean_c - np.float32(a3) * diff * inv_var_T
-        d_logvar_c_S = (
-            d_c_S * eps_c_S * std_c_S * np.float32(0.5)
-            + kc * np.float32(0.5) * (np.exp(enc_S.logvar_c) - 1.0)
-            + np.float32(a3 * 0.5) * (ratio - 1.0)
-        )
-        d_logvar_c_T = (
-            d_c_T * eps_c_T * std_c_T * np.float32(0.5)
-            + kc * np.float32(0.5) * (np.exp(enc_T.logvar_c) - 1.0)
-            + np.float32(a3 * 0.5) * (1.0 - ratio - diff * diff * inv_var_T)
-        )
+        # The consistency term's pull on the two means (points), d(a3·kl_C)/d mean.
+        pull = np.float32(a3) * diff * inv_var_T
+        d_mean_c_S = d_c_S + pull
+        d_mean_c_T = d_c_T - pull
+        d_logvar_c_S = d_logvar_c_T = None
+        if not point:
+            # c = mean + e^(logvar/2)·ε; each c's prior KL weighs α1 (Eq. 2 or 6) + α2
+            # (Eq. 8).
+            assert enc_S.logvar_c is not None and enc_T.logvar_c is not None
+            kc = np.float32(a1 + a2)
+            d_mean_c_S += kc * enc_S.mean_c
+            d_mean_c_T += kc * enc_T.mean_c
+            d_logvar_c_S = (
+                d_c_S * eps_c_S * std_c_S * np.float32(0.5)
+                + kc * np.float32(0.5) * (np.exp(enc_S.logvar_c) - 1.0)
+                + np.float32(a3 * 0.5) * (ratio - 1.0)
+            )
+            d_logvar_c_T = (
+                d_c_T * eps_c_T * std_c_T * np.float32(0.5)
+                + kc * np.float32(0.5) * (np.exp(enc_T.logvar_c) - 1.0)
+                + np.float32(a3 * 0.5) * (1.0 - ratio - diff * diff * inv_var_T)
+            )
         d_mean_y_S = d_logvar_y_S = d_mean_y_T = d_logvar_y_T = None
         if y_S is not None:
             assert d_y_S is not None and d_y_T is not None and enc_T.mean_y is not None
@@ -444,7 +511,7 @@ class PVEDNumpyStep:
         self.encoder_S.backward(enc_S, d_mean_c_S, d_logvar_c_S, d_mean_y_S, d_logvar_y_S)
         self.encoder_T.backward(enc_T, d_mean_c_T, d_logvar_c_T, d_mean_y_T, d_logvar_y_T)
 
-        # -- the logged parts, as PVED.loss names them -----------------------------------
+        # -- the logged parts, as the model's loss names them ----------------------------
         kl_in_T = (kl_c_S + kl_y_S) if crossed else (kl_c_T + kl_y_T)
         kl_in_S = (kl_c_T + kl_y_T) if crossed else (kl_c_S + kl_y_S)
         means = {
@@ -456,6 +523,7 @@ class PVEDNumpyStep:
             "kl_SS": kl_c_S.mean(dtype=np.float64),
             "loglik_TT": ll_TT.mean(dtype=np.float64),
             "kl_TT": kl_c_T.mean(dtype=np.float64),
+            "sqdist_C": 2.0 * kl_C.mean(dtype=np.float64),
         }
         for term in ("ST", "TS", "SS", "TT"):
             means[f"L_{term}"] = means[f"loglik_{term}"] - means[f"kl_{term}"]
@@ -466,7 +534,7 @@ class PVEDNumpyStep:
             + cfg.alpha2 * (means["L_SS"] + means["L_TT"])
             + scale * cfg.alpha3 * means["L_C"]
         )
-        return np.array([means[name] for name in PART_NAMES], dtype=np.float64)
+        return np.array([means[name] for name in self.part_names], dtype=np.float64)
 
     def step(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
         """:meth:`loss_and_grad`, then (when the loss is finite) gradient clipping and one

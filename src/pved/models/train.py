@@ -23,8 +23,7 @@ from tqdm.auto import tqdm
 
 from pved.errors import PvedError
 from pved.models.base import ModelConfig, ModelDims, SharedSpaceModel
-from pved.models.pved import PVED
-from pved.models.pved_numpy import PART_NAMES, PVEDNumpyStep, numpy_trainable
+from pved.models.pved_numpy import PVEDNumpyStep, numpy_trainable
 from pved.models.registry import build_model, load_model, model_class, save_model
 from pved.runs import Run
 
@@ -40,7 +39,7 @@ CHECKPOINT_FORMAT = "pved-train-checkpoint"
 
 
 #: How :func:`train_model` can compute the gradient: by hand in numpy
-#: (:mod:`pved.models.pved_numpy`, for models whose loss is PVED's; others use autograd)
+#: (:mod:`pved.models.pved_numpy`, for PVED and its four variants; others use autograd)
 #: or with torch autograd for every model.
 BACKENDS = ("numpy", "torch")
 
@@ -176,7 +175,7 @@ def train_model(
         progress: show a tqdm bar over epochs.
         backend: ``"numpy"`` computes the gradient of the PVED family's loss by hand
             (:mod:`pved.models.pved_numpy`: the same objective, noise and Adam update, about
-            twice as fast; other models use autograd), ``"torch"`` uses autograd for every
+            twice as fast; ``gupta2017`` uses autograd), ``"torch"`` uses autograd for every
             model. Checkpoints are the same either way, so a run may resume under the
             other backend; ``model.metadata["train_backend"]`` says which one trained.
 
@@ -243,12 +242,11 @@ def _train(
         run.drop_metrics_after(step if state is not None else -1)
 
     numpy_step: PVEDNumpyStep | None = None
-    if backend == "numpy" and isinstance(model, PVED) and numpy_trainable(model):
+    if backend == "numpy" and numpy_trainable(model):
         numpy_step = PVEDNumpyStep(model, config.lr, config.grad_clip)
         numpy_step.load_from(optimizer)
-        with torch.no_grad():  # standardised once: the statistics are fixed from here on
-            fs_train = np.ascontiguousarray(model.features_source(xs_train).numpy())
-            ft_train = np.ascontiguousarray(model.features_target(xt_train).numpy())
+        # standardised once: the statistics are fixed from here on
+        fs_train, ft_train = numpy_step.features(xs_train, xt_train)
     model.metadata["train_backend"] = "numpy" if numpy_step is not None else "torch"
 
     def checkpoint() -> None:
@@ -294,7 +292,7 @@ def _train(
                 model.epochs_done = epoch + start / n_train
                 if numpy_step is not None:
                     rows = idx.numpy()
-                    keys = list(PART_NAMES)
+                    keys = list(numpy_step.part_names)
                     values = numpy_step.step(fs_train[rows], ft_train[rows], model.epochs_done)
                 else:
                     parts = model.loss(xs_train[idx], xt_train[idx])
