@@ -36,7 +36,7 @@ from pved.models import (
     save_model,
     train_model,
 )
-from pved.models.pved_numpy import numpy_trainable
+from pved.models.numpy_grad import numpy_trainable
 from pved.runs import Run
 
 torch.set_num_threads(1)

@@ -1,7 +1,7 @@
 """One flat float32 parameter vector: the buffer, Adam on it, and gradient clipping.
 
 Small networks trained by hand-written numpy passes (PPO's actor-critic,
-``pved.rl.ppo``; the PVED family's Eq. 9 loss, ``pved.models.pved_numpy``) keep every
+``pved.rl.ppo``; the shared-space models, ``pved.models.numpy_grad``) keep every
 parameter as a view into one contiguous buffer, so that the optimiser, gradient clipping
 and checkpoints act on one vector instead of dozens of small tensors: one set of vector
 operations per step where torch's per-tensor optimisers issue a dozen per parameter.

@@ -1,18 +1,20 @@
-"""The PVED family's Eq. 9 objective and its gradient written out in numpy, for training.
+"""The shared-space models' training losses and their gradients written out in numpy.
 
-:func:`pved.models.train_model` trains ``pved``, ``pved-state-only``, ``pved-shared-only``,
-``pved-vae`` (every model whose loss is :meth:`PVED.loss`) and ``pved-det-shared``
-(:meth:`PVEDDetShared.loss`) through :class:`PVEDNumpyStep` by default. It computes the
-same objective as the model's ``loss``, with the same reparameterisation noise (drawn from
-torch's global generator in the same order and shapes), and applies torch.optim.Adam's
-update to the same parameter memory; only floating-point rounding differs.
-``backend="torch"`` trains with autograd instead, as it does ``gupta2017``.
+:func:`pved.models.train_model` trains every registered model through a
+:class:`NumpyStep` by default: :class:`PVEDNumpyStep` for Eq. 9 (``pved``,
+``pved-state-only``, ``pved-shared-only``, ``pved-vae``, whose loss is :meth:`PVED.loss`,
+and ``pved-det-shared``'s :meth:`PVEDDetShared.loss`) and :class:`GuptaNumpyStep` for
+``gupta2017``. Each computes the same objective as the model's ``loss``, with the same
+reparameterisation noise (drawn from torch's global generator in the same order and
+shapes), and applies torch.optim.Adam's update to the same parameter memory; only
+floating-point rounding differs. ``backend="torch"`` trains with autograd instead, as
+does any model subclass with a loss of its own.
 
 Why by hand: a PVED step at batch 256 is ~150 small operators (four encoder heads, four
 decoders, five Gaussian terms) forward and as many backward, and at these sizes torch's
 per-operator dispatch and autograd bookkeeping cost more than the arithmetic. The
-measured ratio is in docs/results.md ("Model training speed"); the gradient is checked
-against autograd in ``tests/test_models_pved.py``.
+measured ratios are in docs/results.md ("Model training speed"); the losses and
+gradients are checked against autograd in ``tests/test_models_pved.py``.
 
 Notation as in :mod:`pved.models.pved`. Shapes: B rows; W_S, W_T the widths the networks
 see; C = ``shared_dim``, Y = ``individual_dim``, H = ``hidden``. Names ending ``_S`` are
@@ -22,6 +24,7 @@ is (out, in) and computes ``x @ W.T + b``; the numpy code uses the same views.
 
 from __future__ import annotations
 
+import abc
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -33,10 +36,20 @@ from pved.errors import PvedError
 from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import LOG_2PI
+from pved.models.gupta import Gupta2017, Gupta2017Config
 from pved.models.pved import ENCODER_LOGVAR_BOUNDS, PVED, PVEDConfig, consistency_scale
 from pved.models.variants import PVEDDetShared
 
-__all__ = ["DET_SHARED_PART_NAMES", "PART_NAMES", "PVEDNumpyStep", "numpy_trainable"]
+__all__ = [
+    "DET_SHARED_PART_NAMES",
+    "GUPTA_PART_NAMES",
+    "PART_NAMES",
+    "GuptaNumpyStep",
+    "NumpyStep",
+    "PVEDNumpyStep",
+    "numpy_step",
+    "numpy_trainable",
+]
 
 #: The loss parts :meth:`PVEDNumpyStep.step` returns for PVED, its variants with
 #: Gaussian c, in :meth:`PVED.loss`'s order.
@@ -73,6 +86,8 @@ DET_SHARED_PART_NAMES = (
     "L_C",
     "total",
 )
+#: The same for ``gupta2017``, in :meth:`Gupta2017.loss`'s order.
+GUPTA_PART_NAMES = ("recon_S", "recon_T", "align", "total")
 
 Linear = tuple[np.ndarray, np.ndarray]  # (W (out, in), b (out,))
 
@@ -81,14 +96,23 @@ ADAM_EPS = 1e-8
 
 
 def numpy_trainable(model: SharedSpaceModel) -> bool:
-    """True when ``model``'s training loss is one :class:`PVEDNumpyStep` computes: PVED's
-    own (:meth:`PVED.loss` and :meth:`PVED.objective`, which its state-only, shared-only
-    and VAE variants inherit) or :meth:`PVEDDetShared.loss`. A subclass that overrides
-    them keeps autograd."""
+    """True when ``model``'s training loss is one this module computes: PVED's own
+    (:meth:`PVED.loss` and :meth:`PVED.objective`, which its state-only, shared-only and
+    VAE variants inherit), :meth:`PVEDDetShared.loss` or :meth:`Gupta2017.loss`. A
+    subclass that overrides them keeps autograd."""
     if isinstance(model, PVED):
         pved_class = type(model)
         return pved_class.loss is PVED.loss and pved_class.objective is PVED.objective
-    return isinstance(model, PVEDDetShared) and type(model).loss is PVEDDetShared.loss
+    if isinstance(model, PVEDDetShared):
+        return type(model).loss is PVEDDetShared.loss
+    return isinstance(model, Gupta2017) and type(model).loss is Gupta2017.loss
+
+
+def numpy_step(model: SharedSpaceModel, lr: float, grad_clip: float | None) -> NumpyStep:
+    """The :class:`NumpyStep` that trains ``model`` (see :func:`numpy_trainable`)."""
+    if isinstance(model, Gupta2017):
+        return GuptaNumpyStep(model, lr, grad_clip)
+    return PVEDNumpyStep(model, lr, grad_clip)
 
 
 def _sigmoid(z: np.ndarray) -> np.ndarray:
@@ -332,8 +356,9 @@ def _kl_standard_normal(mean: np.ndarray, logvar: np.ndarray) -> np.ndarray:
     return np.float32(0.5) * (np.exp(logvar) + mean * mean - 1.0 - logvar).sum(axis=1)
 
 
-class PVEDNumpyStep:
-    """One Adam step of Eq. 9 on a minibatch, forward and backward in numpy.
+class NumpyStep(abc.ABC):
+    """One Adam step of a model's training loss on a minibatch, the loss and its gradient
+    computed in numpy by a subclass.
 
     Construction re-homes ``model``'s parameters into one flat buffer
     (:class:`pved.flat.FlatParams`); the module keeps working as an ordinary torch module
@@ -345,41 +370,108 @@ class PVEDNumpyStep:
         grad_clip: global gradient-norm bound, or None.
     """
 
+    #: The names of the parts :meth:`loss_and_grad` returns, in the model's ``loss`` order.
+    part_names: tuple[str, ...]
+
     def __init__(self, model: SharedSpaceModel, lr: float, grad_clip: float | None) -> None:
         if not numpy_trainable(model):
             raise PvedError(f"model {model.name!r} has its own loss; train it with autograd")
-        assert isinstance(model.config, PVEDConfig)
         self.model = model
-        self.cfg: PVEDConfig = model.config
-        #: pved-det-shared: c is a point, L_C = −½‖c_S − c_T‖² (pved.models.variants).
-        self.point_shared = isinstance(model, PVEDDetShared)
-        #: Eqs. 2 and 6 take the other agent's posterior (False: pved-vae's own).
-        self.crossed = bool(getattr(model, "crossed_posteriors", True))
-        self.part_names = DET_SHARED_PART_NAMES if self.point_shared else PART_NAMES
         self.lr = float(lr)
         self.grad_clip = grad_clip
         names = [name for name, _ in model.named_parameters()]
         # model.parameters() order, the order of a torch Adam's state over the model
         self.params = [p for _, p in model.named_parameters()]
         self.flat = FlatParams(self.params)
-        views = _Views(names, self.flat.params_np, self.flat.grads_np)
         self.adam = FlatAdam(self.flat.flat_np.size, eps=ADAM_EPS)
-        self.encoder_S = _Encoder(views, "encoder_S", self.point_shared)
-        self.encoder_T = _Encoder(views, "encoder_T", self.point_shared)
-        self.decoder_T = _Decoder(views, "decoder_T", self.cfg)
-        self.decoder_S = _Decoder(views, "decoder_S", self.cfg)
-        self.decoder_T_prime = _Decoder(views, "decoder_T_prime", self.cfg)
-        self.decoder_S_prime = _Decoder(views, "decoder_S_prime", self.cfg)
+        views = _Views(names, self.flat.params_np, self.flat.grads_np)
+        self._bind(views)
         if views.untaken():
             raise PvedError(
                 f"model {model.name!r} has parameters the numpy step does not train: "
                 f"{', '.join(views.untaken())}"
             )
 
-    @torch.no_grad()
+    @abc.abstractmethod
+    def _bind(self, views: _Views) -> None:
+        """Take the numpy views of every parameter the loss uses."""
+
+    @abc.abstractmethod
     def features(self, x_S: torch.Tensor, x_T: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """Raw rows (N, D_S), (N, D_T) -> the standardised entries the networks see, as
         contiguous float32 arrays ((N, W_S), (N, W_T)), ready for :meth:`step`."""
+
+    @abc.abstractmethod
+    def loss_and_grad(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
+        """The loss parts on features xs (B, W_S), xt (B, W_T) in :attr:`part_names`
+        order (batch means, ``total`` last, to minimise), and d total / d parameters
+        written to ``self.flat.grad_np``."""
+
+    def step(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
+        """:meth:`loss_and_grad`, then (when the loss is finite) gradient clipping and one
+        Adam step on the parameters; returns the parts. A non-finite loss leaves the
+        parameters untouched."""
+        parts = self.loss_and_grad(xs, xt, epochs_done)
+        if np.isfinite(parts[-1]):
+            if self.grad_clip is not None:
+                clip_grad_norm_np(self.flat.grad_np, self.grad_clip)
+            self.adam.step(self.flat.flat_np, self.flat.grad_np, self.lr)
+        return parts
+
+    # -- torch.optim.Adam's state dict, so checkpoints do not depend on the backend --------
+    def save_to(self, optimizer: torch.optim.Adam) -> None:
+        """Put the Adam moments and step count into ``optimizer`` (a torch Adam over
+        ``model.parameters()``), whose ``state_dict()`` then goes into the checkpoint."""
+        for p, where in zip(self.params, self.flat.slices, strict=True):
+            if self.adam.t == 0:
+                optimizer.state.pop(p, None)
+                continue
+            optimizer.state[p] = {
+                "step": torch.tensor(float(self.adam.t)),
+                "exp_avg": torch.from_numpy(self.adam.m[where].reshape(p.shape).copy()),
+                "exp_avg_sq": torch.from_numpy(self.adam.v[where].reshape(p.shape).copy()),
+            }
+
+    def load_from(self, optimizer: torch.optim.Adam) -> None:
+        """Take the Adam moments and step count from ``optimizer`` (e.g. just loaded
+        from a checkpoint written by either backend)."""
+        steps = set()
+        for p, where in zip(self.params, self.flat.slices, strict=True):
+            state: dict[str, Any] = optimizer.state.get(p, {})
+            if not state:
+                self.adam.m[where] = 0.0
+                self.adam.v[where] = 0.0
+                steps.add(0)
+                continue
+            self.adam.m[where] = state["exp_avg"].detach().reshape(-1).numpy()
+            self.adam.v[where] = state["exp_avg_sq"].detach().reshape(-1).numpy()
+            steps.add(int(float(state["step"])))
+        if len(steps) > 1:
+            raise PvedError(f"optimizer state has parameters at different steps {sorted(steps)}")
+        self.adam.t = steps.pop() if steps else 0
+
+
+class PVEDNumpyStep(NumpyStep):
+    """Eq. 9 (PVED and its four variants): forward and backward in numpy."""
+
+    def _bind(self, views: _Views) -> None:
+        model = self.model
+        assert isinstance(model.config, PVEDConfig)
+        self.cfg: PVEDConfig = model.config
+        #: pved-det-shared: c is a point, L_C = −½‖c_S − c_T‖² (pved.models.variants).
+        self.point_shared = isinstance(model, PVEDDetShared)
+        #: Eqs. 2 and 6 take the other agent's posterior (False: pved-vae's own).
+        self.crossed = bool(getattr(model, "crossed_posteriors", True))
+        self.part_names = DET_SHARED_PART_NAMES if self.point_shared else PART_NAMES
+        self.encoder_S = _Encoder(views, "encoder_S", self.point_shared)
+        self.encoder_T = _Encoder(views, "encoder_T", self.point_shared)
+        self.decoder_T = _Decoder(views, "decoder_T", self.cfg)
+        self.decoder_S = _Decoder(views, "decoder_S", self.cfg)
+        self.decoder_T_prime = _Decoder(views, "decoder_T_prime", self.cfg)
+        self.decoder_S_prime = _Decoder(views, "decoder_S_prime", self.cfg)
+
+    @torch.no_grad()
+    def features(self, x_S: torch.Tensor, x_T: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         model = self.model
         if isinstance(model, PVED):
             fs, ft = model.features_source(x_S), model.features_target(x_T)
@@ -389,9 +481,8 @@ class PVEDNumpyStep:
 
     # -- the objective and its gradient ----------------------------------------------------
     def loss_and_grad(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
-        """Eq. 9's parts on standardised features xs (B, W_S), xt (B, W_T), in
-        :attr:`part_names` order (batch means, ``total`` = −L with the warm-up's α3), and
-        d total / d parameters written to ``self.flat.grad_np``."""
+        """Eq. 9's parts (``total`` = −L, α3 scaled by the warm-up at ``epochs_done``)
+        and their gradient, as :meth:`NumpyStep.loss_and_grad`."""
         cfg, point = self.cfg, self.point_shared
         batch = xs.shape[0]
         if xt.shape[0] != batch:
@@ -536,45 +627,91 @@ class PVEDNumpyStep:
         )
         return np.array([means[name] for name in self.part_names], dtype=np.float64)
 
-    def step(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
-        """:meth:`loss_and_grad`, then (when the loss is finite) gradient clipping and one
-        Adam step on the parameters; returns the parts. A non-finite loss leaves the
-        parameters untouched."""
-        parts = self.loss_and_grad(xs, xt, epochs_done)
-        if np.isfinite(parts[-1]):
-            if self.grad_clip is not None:
-                clip_grad_norm_np(self.flat.grad_np, self.grad_clip)
-            self.adam.step(self.flat.flat_np, self.flat.grad_np, self.lr)
-        return parts
 
-    # -- torch.optim.Adam's state dict, so checkpoints do not depend on the backend --------
-    def save_to(self, optimizer: torch.optim.Adam) -> None:
-        """Put the Adam moments and step count into ``optimizer`` (a torch Adam over
-        ``model.parameters()``), whose ``state_dict()`` then goes into the checkpoint."""
-        for p, where in zip(self.params, self.flat.slices, strict=True):
-            if self.adam.t == 0:
-                optimizer.state.pop(p, None)
-                continue
-            optimizer.state[p] = {
-                "step": torch.tensor(float(self.adam.t)),
-                "exp_avg": torch.from_numpy(self.adam.m[where].reshape(p.shape).copy()),
-                "exp_avg_sq": torch.from_numpy(self.adam.v[where].reshape(p.shape).copy()),
-            }
+class _ReluMLP:
+    """Views of a three-layer ReLU MLP, ``nn.Sequential(encoder_trunk, nn.Linear)`` (the
+    networks of :class:`Gupta2017`), with its forward and backward passes."""
 
-    def load_from(self, optimizer: torch.optim.Adam) -> None:
-        """Take the Adam moments and step count from ``optimizer`` (e.g. just loaded
-        from a checkpoint written by either backend)."""
-        steps = set()
-        for p, where in zip(self.params, self.flat.slices, strict=True):
-            state: dict[str, Any] = optimizer.state.get(p, {})
-            if not state:
-                self.adam.m[where] = 0.0
-                self.adam.v[where] = 0.0
-                steps.add(0)
-                continue
-            self.adam.m[where] = state["exp_avg"].detach().reshape(-1).numpy()
-            self.adam.v[where] = state["exp_avg_sq"].detach().reshape(-1).numpy()
-            steps.add(int(float(state["step"])))
-        if len(steps) > 1:
-            raise PvedError(f"optimizer state has parameters at different steps {sorted(steps)}")
-        self.adam.t = steps.pop() if steps else 0
+    def __init__(self, views: _Views, prefix: str) -> None:
+        self.layers = [
+            views.linear(f"{prefix}.0.0"),
+            views.linear(f"{prefix}.0.2"),
+            views.linear(f"{prefix}.1"),
+        ]
+
+    def forward(self, x: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        """(B, in) -> (B, out) and the inputs of each layer (for :meth:`backward`)."""
+        inputs = [x]
+        h = x
+        for k, (layer, _) in enumerate(self.layers):
+            h = _linear(h, layer)
+            if k < len(self.layers) - 1:
+                np.maximum(h, np.float32(0.0), out=h)  # ReLU's output > 0 iff its input is
+                inputs.append(h)
+        return h, inputs
+
+    def backward(self, inputs: list[np.ndarray], d_out: np.ndarray) -> np.ndarray:
+        """Write the weights' gradients from d(loss)/d(output) (B, out); returns
+        d(loss)/d(input) (B, in)."""
+        delta = d_out
+        for k in range(len(self.layers) - 1, -1, -1):
+            (weight, _), grad = self.layers[k]
+            _linear_backward(inputs[k], delta, grad)
+            delta = delta @ weight
+            if k > 0:
+                delta *= inputs[k] > 0.0
+        return delta
+
+
+class GuptaNumpyStep(NumpyStep):
+    """Gupta et al. 2017's loss (:class:`Gupta2017`): two autoencoders and the alignment
+    of their embeddings, forward and backward in numpy. Deterministic: no noise."""
+
+    part_names = GUPTA_PART_NAMES
+
+    def _bind(self, views: _Views) -> None:
+        assert isinstance(self.model.config, Gupta2017Config)
+        self.cfg_gupta: Gupta2017Config = self.model.config
+        self.embed_S = _ReluMLP(views, "embed_S")
+        self.embed_T = _ReluMLP(views, "embed_T")
+        self.decode_S = _ReluMLP(views, "decode_S")
+        self.decode_T = _ReluMLP(views, "decode_T")
+
+    @torch.no_grad()
+    def features(self, x_S: torch.Tensor, x_T: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        model = self.model
+        assert isinstance(model, Gupta2017)
+        fs, ft = model.states_source(x_S), model.states_target(x_T)
+        return np.ascontiguousarray(fs.numpy()), np.ascontiguousarray(ft.numpy())
+
+    def loss_and_grad(self, xs: np.ndarray, xt: np.ndarray, epochs_done: float) -> np.ndarray:
+        """recon_S, recon_T, align and their weighted sum (module docstring of
+        :mod:`pved.models.gupta`); ``epochs_done`` is unused."""
+        cfg = self.cfg_gupta
+        batch = xs.shape[0]
+        if xt.shape[0] != batch:
+            raise PvedError(f"source and target batches differ in size: {batch} vs {xt.shape[0]}")
+        self.flat.grad_np.fill(0.0)
+        f, f_inputs = self.embed_S.forward(xs)
+        g, g_inputs = self.embed_T.forward(xt)
+        rec_S, rec_S_inputs = self.decode_S.forward(f)
+        rec_T, rec_T_inputs = self.decode_T.forward(g)
+        err_S, err_T, gap = rec_S - xs, rec_T - xt, f - g
+        recon_S = (err_S * err_S).sum(axis=1)
+        recon_T = (err_T * err_T).sum(axis=1)
+        align = (gap * gap).sum(axis=1)
+        # d(w · mean ‖e‖²)/d e = 2w e / B
+        w_S = np.float32(2.0 * cfg.weight_recon_source / batch)
+        w_T = np.float32(2.0 * cfg.weight_recon_target / batch)
+        w_A = np.float32(2.0 * cfg.weight_align / batch)
+        d_f = self.decode_S.backward(rec_S_inputs, w_S * err_S) + w_A * gap
+        d_g = self.decode_T.backward(rec_T_inputs, w_T * err_T) - w_A * gap
+        self.embed_S.backward(f_inputs, d_f)
+        self.embed_T.backward(g_inputs, d_g)
+        means = [float(v.mean(dtype=np.float64)) for v in (recon_S, recon_T, align)]
+        total = (
+            cfg.weight_recon_source * means[0]
+            + cfg.weight_recon_target * means[1]
+            + cfg.weight_align * means[2]
+        )
+        return np.array([*means, total], dtype=np.float64)
