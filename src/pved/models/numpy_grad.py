@@ -37,7 +37,13 @@ from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import LOG_2PI
 from pved.models.gupta import Gupta2017, Gupta2017Config
-from pved.models.pved import ENCODER_LOGVAR_BOUNDS, PVED, PVEDConfig, consistency_scale
+from pved.models.pved import (
+    ENCODER_LOGVAR_BOUNDS,
+    OBJECTIVE_TERMS,
+    PVED,
+    PVEDConfig,
+    consistency_scale,
+)
 from pved.models.variants import PVEDDetShared
 
 __all__ = [
@@ -54,36 +60,15 @@ __all__ = [
 #: The loss parts :meth:`PVEDNumpyStep.step` returns for PVED, its variants with
 #: Gaussian c, in :meth:`PVED.loss`'s order.
 PART_NAMES = (
-    "loglik_ST",
-    "kl_ST",
-    "loglik_TS",
-    "kl_TS",
-    "loglik_SS",
-    "kl_SS",
-    "loglik_TT",
-    "kl_TT",
-    "L_ST",
-    "L_TS",
-    "L_SS",
-    "L_TT",
-    "L_C",
+    *(f"{piece}_{term}" for term in ("ST", "TS", "SS", "TT") for piece in ("loglik", "kl")),
+    *OBJECTIVE_TERMS,
     "total",
 )
 #: The same for ``pved-det-shared``, in :meth:`PVEDDetShared.loss`'s order: no prior
 #: KL on the point c, and the squared distance behind its L_C.
 DET_SHARED_PART_NAMES = (
-    "loglik_ST",
-    "kl_ST",
-    "loglik_TS",
-    "kl_TS",
-    "loglik_SS",
-    "loglik_TT",
-    "sqdist_C",
-    "L_ST",
-    "L_TS",
-    "L_SS",
-    "L_TT",
-    "L_C",
+    *("loglik_ST", "kl_ST", "loglik_TS", "kl_TS", "loglik_SS", "loglik_TT", "sqdist_C"),
+    *OBJECTIVE_TERMS,
     "total",
 )
 #: The same for ``gupta2017``, in :meth:`Gupta2017.loss`'s order.
