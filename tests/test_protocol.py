@@ -421,6 +421,13 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     # `pved plot` redraws from the run files alone
     (out / "curves.png").unlink()
     (out / "summary.json").unlink()
+    # a model trained before result.json recorded its collapse check is judged from its
+    # final validation metrics
+    init = selection["init"]
+    model_result_path = out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "result.json"
+    model_result = json.loads(model_result_path.read_text())
+    recorded = model_result.pop("shared_collapsed")
+    model_result_path.write_text(json.dumps(model_result))
     plotted = subprocess.run(
         [*PVED, "plot", str(out), "--out", str(tmp_path / "all.png")],
         env=_env(),
@@ -431,6 +438,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert (out / "curves.png").exists() and (tmp_path / "all.png").exists()
     again = json.loads((out / "summary.json").read_text())
     assert again["pairs"]["reacher"]["methods"]["pved"]["final"] == methods["pved"]["final"]
+    assert again["pairs"]["reacher"]["methods"]["pved"]["shared_collapsed"] is recorded
 
     # the pair report of this protocol: one rendered rollout per method, embedded
     from pved.analysis.pair_report import build_pair_report

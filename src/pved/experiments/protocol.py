@@ -58,6 +58,7 @@ from pved.experiments.stages import (
     transfer,
 )
 from pved.models.registry import model_class
+from pved.models.train import shared_subspace_collapsed
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
@@ -615,8 +616,15 @@ def _summarize(
                 model_dir = run_path(plan.runs, pair, "model", method, state["init"])
                 if (model_dir / "result.json").exists():
                     model_result = json.loads((model_dir / "result.json").read_text())
-                    if "shared_collapsed" in model_result:  # not Gupta's, nor older runs'
+                    val = {
+                        k.removeprefix("val/"): v
+                        for k, v in model_result.items()
+                        if k.startswith("val/")
+                    }
+                    if "shared_collapsed" in model_result:
                         entry["shared_collapsed"] = model_result["shared_collapsed"]
+                    elif "kl_SS" in val:  # trained before result.json recorded it
+                        entry["shared_collapsed"] = shared_subspace_collapsed(val)
             if done:
                 scores = np.array([results[j.key][f"final/{metric}"] for j in done], float)
                 entry["final"] = bootstrap_summary(scores)
