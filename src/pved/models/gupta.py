@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
+from typing import TypeVar
 
 import torch
 from torch import nn
@@ -68,6 +70,19 @@ class Gupta2017Config(ModelConfig):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
                 raise PvedError(f"config: {name} must be a finite number >= 0, got {value}")
+
+
+Term = TypeVar("Term", float, torch.Tensor)
+
+
+def weighted_total(cfg: Gupta2017Config, parts: Mapping[str, Term]) -> Term:
+    """The loss to minimise from its three terms (module docstring): tensors in
+    :meth:`Gupta2017.loss`, floats in the numpy gradient's logged parts."""
+    return (
+        cfg.weight_recon_source * parts["recon_S"]
+        + cfg.weight_recon_target * parts["recon_T"]
+        + cfg.weight_align * parts["align"]
+    )
 
 
 def _mlp(in_dim: int, hidden: int, out_dim: int) -> nn.Sequential:
@@ -134,10 +149,5 @@ class Gupta2017(SharedSpaceModel):
             "recon_T": (self.decode_T(g) - s_T).pow(2).sum(dim=-1).mean(),
             "align": (f - g).pow(2).sum(dim=-1).mean(),
         }
-        cfg = self.config
-        parts["total"] = (
-            cfg.weight_recon_source * parts["recon_S"]
-            + cfg.weight_recon_target * parts["recon_T"]
-            + cfg.weight_align * parts["align"]
-        )
+        parts["total"] = weighted_total(self.config, parts)
         return parts

@@ -36,13 +36,14 @@ from pved.errors import PvedError
 from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import LOG_2PI
-from pved.models.gupta import Gupta2017, Gupta2017Config
+from pved.models.gupta import Gupta2017, Gupta2017Config, weighted_total
 from pved.models.pved import (
     ENCODER_LOGVAR_BOUNDS,
     OBJECTIVE_TERMS,
     PVED,
     PVEDConfig,
     consistency_scale,
+    eq9_objective,
 )
 from pved.models.variants import PVEDDetShared
 
@@ -604,12 +605,7 @@ class PVEDNumpyStep(NumpyStep):
         for term in ("ST", "TS", "SS", "TT"):
             means[f"L_{term}"] = means[f"loglik_{term}"] - means[f"kl_{term}"]
         means["L_C"] = -kl_C.mean(dtype=np.float64)
-        scale = consistency_scale(cfg, epochs_done)
-        means["total"] = -(
-            cfg.alpha1 * (means["L_ST"] + means["L_TS"])
-            + cfg.alpha2 * (means["L_SS"] + means["L_TT"])
-            + scale * cfg.alpha3 * means["L_C"]
-        )
+        means["total"] = -eq9_objective(cfg, means, epochs_done)
         return np.array([means[name] for name in self.part_names], dtype=np.float64)
 
 
@@ -693,10 +689,10 @@ class GuptaNumpyStep(NumpyStep):
         d_g = self.decode_T.backward(rec_T_inputs, w_T * err_T) - w_A * gap
         self.embed_S.backward(f_inputs, d_f)
         self.embed_T.backward(g_inputs, d_g)
-        means = [float(v.mean(dtype=np.float64)) for v in (recon_S, recon_T, align)]
-        total = (
-            cfg.weight_recon_source * means[0]
-            + cfg.weight_recon_target * means[1]
-            + cfg.weight_align * means[2]
-        )
-        return np.array([*means, total], dtype=np.float64)
+        means = {
+            "recon_S": float(recon_S.mean(dtype=np.float64)),
+            "recon_T": float(recon_T.mean(dtype=np.float64)),
+            "align": float(align.mean(dtype=np.float64)),
+        }
+        means["total"] = weighted_total(cfg, means)
+        return np.array([means[name] for name in self.part_names], dtype=np.float64)

@@ -43,7 +43,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import ClassVar
+from collections.abc import Mapping
+from typing import ClassVar, TypeVar
 
 import torch
 import torch.nn.functional as F
@@ -242,12 +243,16 @@ def consistency_scale(cfg: PVEDConfig, epochs_done: float) -> float:
     return min(1.0, max(0.0, epochs_done) / cfg.consistency_warmup_epochs)
 
 
+Term = TypeVar("Term", float, torch.Tensor)
+
+
 def eq9_objective(
-    cfg: PVEDConfig, parts: dict[str, torch.Tensor], epochs_done: float = math.inf
-) -> torch.Tensor:
+    cfg: PVEDConfig, parts: Mapping[str, Term], epochs_done: float = math.inf
+) -> Term:
     """Eq. 9 from the named terms: α1(L_ST + L_TS) + α2(L_SS + L_TT) + α3 L_C (to maximise),
     with α3 scaled by :func:`consistency_scale` while ``epochs_done`` is in the warm-up
-    (the default, no epoch count, is the paper's objective)."""
+    (the default, no epoch count, is the paper's objective). The terms are tensors
+    (autograd training, validation) or floats (the numpy gradient's logged parts)."""
     return (
         cfg.alpha1 * (parts["L_ST"] + parts["L_TS"])
         + cfg.alpha2 * (parts["L_SS"] + parts["L_TT"])
