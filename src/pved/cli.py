@@ -188,6 +188,33 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
 
 
+def _cmd_batch(args: argparse.Namespace) -> None:
+    from pved.experiments import batch
+
+    if args.action == "export":
+        keys = batch.export_batch(args.protocol, args.batch, limit=args.limit)
+        print(f"{args.batch}: {len(keys)} runs")
+    elif args.action == "run":
+        log = batch.run_batch(
+            args.batch, workers=args.workers, deadline_s=args.deadline_s, start_by_s=args.start_by_s
+        )
+        states = [entry["state"] for entry in log["jobs"].values()]
+        counts = ", ".join(f"{states.count(s)} {s}" for s in sorted(set(states)))
+        print(f"{args.batch / batch.LOG_FILE}: {counts} in {log['elapsed_s']:.0f} s")
+        if args.pack:
+            for path in batch.pack_batch(args.batch, args.pack):
+                print(path)
+    elif args.action == "pack":
+        for path in batch.pack_batch(args.batch, args.to):
+            print(path)
+    else:
+        outcome = batch.import_batch(args.protocol, args.sources)
+        print(", ".join(f"{len(keys)} {what}" for what, keys in outcome.items()))
+        for what in ("mismatch", "unknown"):
+            for key in outcome[what]:
+                print(f"  {what}: {key}")
+
+
 def _cmd_plot(args: argparse.Namespace) -> None:
     from pved.experiments.protocol import plot_protocols
 
@@ -452,6 +479,34 @@ def build_parser() -> argparse.ArgumentParser:
         "ray where it is installed",
     )
     p.set_defaults(func=_cmd_protocol)
+
+    p = sub.add_parser(
+        "batch",
+        help="run a protocol's transfer runs on a machine that cannot reach it",
+        description="export the protocol's transfer runs that can start now into a batch "
+        "directory, run it on another machine, pack what it made into tar files, import "
+        "those into the protocol (each run's config hash checked).",
+    )
+    actions = p.add_subparsers(dest="action", required=True)
+    a = actions.add_parser(
+        "export", help="the runs that can start now, with their models and banks"
+    )
+    a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
+    a.add_argument("--batch", type=Path, required=True, help="a new batch directory")
+    a.add_argument("--limit", type=int, help="at most this many runs")
+    a = actions.add_parser("run", help="run a batch's runs side by side")
+    a.add_argument("--batch", type=Path, required=True)
+    a.add_argument("--workers", type=int, help="runs side by side (default: the CPUs)")
+    a.add_argument("--deadline-s", type=float, help="kill what still runs after this")
+    a.add_argument("--start-by-s", type=float, help="start no run after this")
+    a.add_argument("--pack", type=Path, help="then pack the run directories into this")
+    a = actions.add_parser("pack", help="a batch's run directories into tar files")
+    a.add_argument("--batch", type=Path, required=True)
+    a.add_argument("--to", type=Path, required=True)
+    a = actions.add_parser("import", help="a batch's runs into the protocol")
+    a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
+    a.add_argument("sources", nargs="+", type=Path, help="tar files or batch directories")
+    p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("plot", help="redraw a protocol's curves and summary from its runs")
     p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")

@@ -46,7 +46,7 @@ from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import train_ppo
+from pved.rl.ppo import PPOConfig, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
@@ -483,7 +483,35 @@ def build_bank(
     return out
 
 
-def transfer(
+@dataclasses.dataclass(frozen=True)
+class TransferSpec:
+    """A transfer run resolved from its arguments before anything runs: where it lives,
+    the config its hash is taken of, and what it trains on.
+
+    Attributes:
+        config: the resolved config (``config.json``; its hash decides whether a run
+            directory holds this run).
+        run_dir: ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``.
+        env_id: the target agent's target-task env.
+        ppo: PPO's config (seed, steps and curve interval applied).
+        eval_episodes, final_episodes: episodes per curve point and of the final evaluation.
+        train_env_kwargs: env options of the training env (the oracle's full reward).
+        shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
+        beta: the shaping weight (Eq. 10).
+    """
+
+    config: dict[str, Any]
+    run_dir: Path
+    env_id: str
+    ppo: PPOConfig
+    eval_episodes: int
+    final_episodes: int
+    train_env_kwargs: dict[str, Any]
+    shaping_inputs: tuple[Path, Path] | None
+    beta: float
+
+
+def transfer_spec(
     pair: str,
     method: str = "pved",
     *,
@@ -497,20 +525,9 @@ def transfer(
     final_eval_episodes: int | None = None,
     runs_root: Path = DEFAULT_RUNS,
     run_name: str | None = None,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """PPO of the target agent on the target task (``pved transfer``); returns
-    ``result.json``.
-
-    The run lives in ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``;
-    a ``run_name`` keeps apart runs of one method with different betas, models or banks.
-
-    ``method`` is a model name (``pved``, a variant, ``gupta2017``: the target agent's
-    restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
-    restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
-    the target could do if the reward told it everything). Evaluation always uses the
-    target task's default env, so every method is measured alike."""
-    torch.set_num_threads(1)
+) -> TransferSpec:
+    """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
+    Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     preset = get_preset(pair)
     tcfg = preset.transfer
     beta = tcfg.beta if beta is None else beta
@@ -554,11 +571,69 @@ def transfer(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-    run = Run(run_path(runs_root, pair, "transfer", run_name or method, seed), config)
+    return TransferSpec(
+        config=config,
+        run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
+        env_id=name,
+        ppo=ppo,
+        eval_episodes=eval_episodes,
+        final_episodes=final_episodes,
+        train_env_kwargs=train_env_kwargs,
+        shaping_inputs=shaping_inputs,
+        beta=beta,
+    )
+
+
+def transfer(
+    pair: str,
+    method: str = "pved",
+    *,
+    seed: int = 20000,
+    model_path: Path | str | None = None,
+    bank_path: Path | str | None = None,
+    steps: int | None = None,
+    beta: float | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int | None = None,
+    final_eval_episodes: int | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    run_name: str | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """PPO of the target agent on the target task (``pved transfer``); returns
+    ``result.json``.
+
+    The run lives in ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``;
+    a ``run_name`` keeps apart runs of one method with different betas, models or banks.
+
+    ``method`` is a model name (``pved``, a variant, ``gupta2017``: the target agent's
+    restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
+    restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
+    the target could do if the reward told it everything). Evaluation always uses the
+    target task's default env, so every method is measured alike."""
+    torch.set_num_threads(1)
+    preset = get_preset(pair)
+    spec = transfer_spec(
+        pair,
+        method,
+        seed=seed,
+        model_path=model_path,
+        bank_path=bank_path,
+        steps=steps,
+        beta=beta,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        final_eval_episodes=final_eval_episodes,
+        runs_root=runs_root,
+        run_name=run_name,
+    )
+    name, ppo, shaping_inputs = spec.env_id, spec.ppo, spec.shaping_inputs
+    eval_episodes, final_episodes = spec.eval_episodes, spec.final_episodes
+    run = Run(spec.run_dir, spec.config)
     if run.is_done():
         return run.read_result()
     run.start()
-    env = make_batched(name, ppo.num_envs, **train_env_kwargs)
+    env = make_batched(name, ppo.num_envs, **spec.train_env_kwargs)
     if shaping_inputs is not None:
         model = load_model(shaping_inputs[0])
         if model.metadata.get("target_agent") not in (None, preset.target_agent):
@@ -566,7 +641,7 @@ def transfer(
         if model.name != method:
             raise PvedError(f"model {shaping_inputs[0]} is a {model.name!r} model, not {method!r}")
         bank = load_bank(shaping_inputs[1])
-        shaping = LatentShaping(model, bank, beta, env.robot_state_indices)
+        shaping = LatentShaping(model, bank, spec.beta, env.robot_state_indices)
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)

@@ -1,0 +1,404 @@
+"""Protocol runs made away from the protocol: a batch directory for a machine that
+cannot reach the one the protocol runs on (a batch node, a lent machine with no network).
+
+Three steps, each a ``pved batch`` verb:
+
+1. :func:`export_batch` writes the protocol's transfer runs that are ready to start (their
+   model and source bank exist) and not started here into a batch directory:
+   ``batch.json`` (each run's arguments, paths relative to the batch) and the models and
+   banks they read, under ``runs/`` as the protocol lays them out.
+2. :func:`run_batch`, on the other machine, runs them side by side, one process each,
+   until they are done or a deadline passes; a run killed at the deadline keeps its last
+   checkpoint. :func:`pack_batch` puts the run directories into tar files of a given
+   size at most, for transports that limit file sizes.
+3. :func:`import_batch`, back where the protocol runs, moves each run directory into the
+   protocol's ``runs/``, after checking that its config hash is the one the protocol
+   would give that run here (same PPO config, budget, model and bank digests). It never
+   replaces a run directory that exists; a partial run resumes from its checkpoint when
+   the protocol is run again, and a finished one is taken as done.
+
+Only transfer runs travel: the other stages read the pairing dataset (hundreds of MB on
+the locomotion pairs) and are few. A batch's runs are the same computation as the
+protocol's own; library versions on the other machine may change their last digits.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import tarfile
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pved import __version__
+from pved.errors import PvedError
+from pved.experiments.protocol import ProtocolPlan, _finished_results
+from pved.experiments.runner import WORKER_ENV, _environment, _one_line
+from pved.experiments.stages import file_digest, transfer, transfer_spec
+from pved.runs import atomic_write_json, config_hash
+
+BATCH_FILE = "batch.json"
+LOG_FILE = "log.json"
+BATCH_FORMAT = "pved-batch"
+BATCH_VERSION = 1
+#: Job arguments that are paths inside the protocol's ``runs/`` (stored relative to it).
+PATH_ARGS = ("model_path", "bank_path")
+RUNS = "runs"
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """One exported run: its protocol job key and ``transfer`` arguments, with
+    ``runs_root`` left out and :data:`PATH_ARGS` relative to the runs root."""
+
+    key: str
+    kwargs: dict[str, Any]
+    run_dir: str  # relative to the runs root
+
+    def resolved(self, runs_root: Path) -> dict[str, Any]:
+        """The arguments of ``transfer`` for a runs root at ``runs_root``."""
+        kwargs = dict(self.kwargs, runs_root=runs_root, progress=False)
+        for name in PATH_ARGS:
+            if name in kwargs:
+                kwargs[name] = runs_root / kwargs[name]
+        return kwargs
+
+
+def _relative(path: Path, root: Path, what: str) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(root.resolve()))
+    except ValueError:
+        raise PvedError(f"{what} {path} is outside the protocol's runs ({root})") from None
+
+
+def _read_batch(batch_dir: Path) -> tuple[dict[str, Any], list[BatchJob]]:
+    path = Path(batch_dir) / BATCH_FILE
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise PvedError(f"{batch_dir} is not a batch directory (no {BATCH_FILE})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise PvedError(f"{path} is corrupt ({err})") from None
+    if not isinstance(data, dict) or data.get("format") != BATCH_FORMAT:
+        raise PvedError(f"{path} is not a pved batch file")
+    if data.get("version") != BATCH_VERSION:
+        raise PvedError(f"{path} has batch version {data.get('version')}, not {BATCH_VERSION}")
+    try:
+        jobs = [BatchJob(j["key"], dict(j["kwargs"]), j["run_dir"]) for j in data["jobs"]]
+    except (KeyError, TypeError) as err:
+        raise PvedError(f"{path} is not a readable batch file ({err})") from None
+    return data, jobs
+
+
+def export_batch(
+    protocol_dir: Path | str, batch_dir: Path | str, *, limit: int | None = None
+) -> list[str]:
+    """Write the protocol's transfer runs that can start now and have not started here
+    (no run directory) into ``batch_dir``, in the order the protocol would run them (the
+    tuning runs first), at most ``limit``; returns their job keys.
+
+    ``batch_dir`` must not exist: a batch is written once, then run and imported."""
+    plan = ProtocolPlan.load(Path(protocol_dir))
+    batch = Path(batch_dir)
+    if batch.exists():
+        raise PvedError(f"{batch} exists; a batch goes into a new directory")
+    if limit is not None and limit < 1:
+        raise PvedError(f"--limit must be at least 1, not {limit}")
+    results = _finished_results(plan)
+    ready = [
+        job
+        for job in plan.expand(results)
+        if job.fn is transfer
+        and job.key not in results
+        and job.run_dir is not None
+        and not job.run_dir.exists()
+        and all(dep in results for dep in job.deps)
+    ]
+    ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
+    ready = ready[:limit]
+    jobs: list[dict[str, Any]] = []
+    inputs: dict[str, str] = {}
+    for job in ready:
+        assert job.run_dir is not None
+        kwargs = {k: v for k, v in job.kwargs.items() if k not in ("runs_root", "progress")}
+        for name in PATH_ARGS:
+            if name in kwargs:
+                rel = _relative(Path(kwargs[name]), plan.runs, name)
+                kwargs[name] = rel
+                inputs[rel] = file_digest(plan.runs / rel)
+        jobs.append(
+            {"key": job.key, "kwargs": kwargs, "run_dir": _relative(job.run_dir, plan.runs, "run")}
+        )
+    # written beside, then renamed: a batch directory is complete or absent
+    batch.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{batch.name}.", dir=batch.parent))
+    try:
+        for rel in inputs:
+            dest = staging / RUNS / rel
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(plan.runs / rel, dest)
+        atomic_write_json(
+            staging / BATCH_FILE,
+            {
+                "format": BATCH_FORMAT,
+                "version": BATCH_VERSION,
+                "pved_version": __version__,
+                "protocol": plan.describe(),
+                "inputs": inputs,
+                "jobs": jobs,
+            },
+        )
+        staging.rename(batch)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return [j["key"] for j in jobs]
+
+
+def _run_one(kwargs: dict[str, Any], error_file: str) -> None:
+    """A batch run's process: the transfer run, its error as one line in ``error_file``."""
+    try:
+        transfer(**kwargs)
+    except BaseException as err:
+        Path(error_file).write_text(_one_line(err))
+        raise SystemExit(1) from None
+
+
+def _run_state(run_dir: Path) -> str:
+    if (run_dir / "result.json").exists():
+        return "finished"
+    checkpoints = run_dir / "checkpoints"
+    if checkpoints.is_dir() and any(checkpoints.glob("*.pt")):
+        return "partial"
+    return "nothing"
+
+
+def run_batch(
+    batch_dir: Path | str,
+    *,
+    workers: int | None = None,
+    deadline_s: float | None = None,
+    start_by_s: float | None = None,
+    poll_s: float = 1.0,
+) -> dict[str, Any]:
+    """Run a batch's runs, ``workers`` at a time (default: the CPUs), each in its own
+    process with one thread; returns ``log.json``'s content (also written there).
+
+    ``deadline_s``: seconds from the call after which the runs still going are killed
+    (each keeps its last checkpoint). ``start_by_s``: no run starts later than this
+    (default: the deadline), so that a run that cannot finish is not begun."""
+    t0 = time.monotonic()
+    batch = Path(batch_dir)
+    data, jobs = _read_batch(batch)
+    runs_root = (batch / RUNS).resolve()
+    for rel, digest in data.get("inputs", {}).items():
+        path = runs_root / rel
+        if not path.exists():
+            raise PvedError(f"batch input {path} is missing")
+        if file_digest(path) != digest:
+            raise PvedError(f"batch input {path} differs from the one exported")
+    workers = workers or os.cpu_count() or 1
+    if workers < 1:
+        raise PvedError(f"--workers must be at least 1, not {workers}")
+    start_by = start_by_s if start_by_s is not None else deadline_s
+    ctx = multiprocessing.get_context("spawn")  # fresh interpreters: no forked torch state
+    errors = Path(tempfile.mkdtemp(prefix="pved-batch-"))
+    log: dict[str, dict[str, Any]] = {}
+    queue = list(jobs)
+    running: dict[str, tuple[Any, float]] = {}
+    try:
+        with _environment(WORKER_ENV):
+            while queue or running:
+                now = time.monotonic() - t0
+                for key, (proc, started) in list(running.items()):
+                    if proc.exitcode is None:
+                        continue
+                    proc.join()
+                    entry = log[key]
+                    entry["wall_s"] = round(now - started, 1)
+                    if proc.exitcode != 0:
+                        error = errors / entry["error_slot"]
+                        entry["error"] = (
+                            error.read_text() if error.exists() else f"exit code {proc.exitcode}"
+                        )
+                    del running[key]
+                if deadline_s is not None and now >= deadline_s:
+                    for key, (proc, started) in running.items():
+                        proc.kill()
+                        proc.join()
+                        log[key].update(wall_s=round(now - started, 1), killed_at_deadline=True)
+                    running.clear()
+                    break
+                while queue and len(running) < workers and (start_by is None or now < start_by):
+                    job = queue.pop(0)
+                    slot = str(len(log))
+                    proc = ctx.Process(
+                        target=_run_one,
+                        args=(job.resolved(runs_root), str(errors / slot)),
+                        daemon=True,
+                    )
+                    proc.start()
+                    running[job.key] = (proc, now)
+                    log[job.key] = {"started_s": round(now, 1), "error_slot": slot}
+                if not running:
+                    break  # nothing may start any more
+                time.sleep(poll_s)
+    finally:
+        for proc, _started in running.values():
+            proc.kill()
+        shutil.rmtree(errors, ignore_errors=True)
+    entries = {}
+    for job in jobs:
+        entry = {k: v for k, v in log.get(job.key, {}).items() if k != "error_slot"}
+        entry["state"] = _run_state(runs_root / job.run_dir) if job.key in log else "not started"
+        entries[job.key] = entry
+    report = {"elapsed_s": round(time.monotonic() - t0, 1), "workers": workers, "jobs": entries}
+    atomic_write_json(batch / LOG_FILE, report)
+    return report
+
+
+def pack_batch(
+    batch_dir: Path | str, dest: Path | str, *, max_bytes: int = 15 * 2**20
+) -> list[Path]:
+    """Pack the batch's finished and checkpointed run directories (not its inputs) into
+    ``dest/runs<i>.tar.gz`` of at most ``max_bytes`` uncompressed each (a run larger than
+    that gets a file of its own), plus a copy of ``log.json``; returns the tar files."""
+    batch = Path(batch_dir)
+    _, jobs = _read_batch(batch)
+    runs_root = batch / RUNS
+    out = Path(dest)
+    out.mkdir(parents=True, exist_ok=True)
+    groups: list[list[str]] = [[]]
+    size = 0
+    for job in jobs:
+        run_dir = runs_root / job.run_dir
+        if _run_state(run_dir) == "nothing":
+            continue
+        run_size = sum(f.stat().st_size for f in run_dir.rglob("*") if f.is_file())
+        if groups[-1] and size + run_size > max_bytes:
+            groups.append([])
+            size = 0
+        groups[-1].append(job.run_dir)
+        size += run_size
+    files = []
+    for i, group in enumerate(g for g in groups if g):
+        path = out / f"runs{i}.tar.gz"
+        tmp = path.with_name(f".{path.name}.tmp")
+        with tarfile.open(tmp, "w:gz") as tar:
+            for rel in group:
+                tar.add(runs_root / rel, arcname=f"{RUNS}/{rel}")
+        tmp.replace(path)
+        files.append(path)
+    if (batch / LOG_FILE).exists():
+        shutil.copy2(batch / LOG_FILE, out / LOG_FILE)
+    return files
+
+
+def _extract(tar_path: Path, dest: Path) -> None:
+    try:
+        with tarfile.open(tar_path) as tar:
+            for member in tar.getmembers():
+                name = Path(member.name)
+                if name.is_absolute() or ".." in name.parts or name.parts[:1] != (RUNS,):
+                    raise PvedError(f"{tar_path} holds {member.name}: not a batch's run")
+                if not (member.isfile() or member.isdir()):
+                    raise PvedError(f"{tar_path} holds {member.name}: not a file")
+            tar.extractall(dest, filter="data")
+    except (tarfile.TarError, OSError, EOFError) as err:
+        raise PvedError(f"{tar_path} is not a readable tar file ({_one_line(err)})") from None
+
+
+def import_batch(protocol_dir: Path | str, sources: Sequence[Path | str]) -> dict[str, list[str]]:
+    """Move the run directories of ``sources`` (tar files from :func:`pack_batch`, or batch
+    directories) into the protocol's ``runs/``; returns job keys by outcome:
+    ``finished`` and ``partial`` (imported), ``exists`` (a run directory is here already:
+    kept), ``unknown`` (no run of this protocol that can start now), ``mismatch`` (its
+    config hash is not the one this run has here) and ``empty`` (no result, no
+    checkpoint)."""
+    plan = ProtocolPlan.load(Path(protocol_dir))
+    results = _finished_results(plan)
+    expected = {
+        _relative(job.run_dir, plan.runs, "run"): job
+        for job in plan.expand(results)
+        if job.fn is transfer and job.run_dir is not None
+    }
+    outcome: dict[str, list[str]] = {
+        k: [] for k in ("finished", "partial", "exists", "unknown", "mismatch", "empty")
+    }
+    plan.runs.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".import-", dir=plan.runs))
+    try:
+        roots: list[Path] = []
+        for i, source in enumerate(Path(s) for s in sources):
+            if source.is_dir():
+                if not (source / BATCH_FILE).exists():
+                    raise PvedError(f"{source} is not a batch directory (no {BATCH_FILE})")
+                roots.append(source / RUNS)
+            elif source.is_file():
+                _extract(source, staging / str(i))
+                roots.append(staging / str(i) / RUNS)
+            else:
+                raise PvedError(f"{source} not found")
+        for root in roots:
+            for config_file in sorted(root.glob("*/transfer/*/seed*/config.json")):
+                run_dir = config_file.parent
+                rel = str(run_dir.relative_to(root))
+                job = expected.get(rel)
+                if job is None:
+                    outcome["unknown"].append(rel)
+                    continue
+                state = _run_state(run_dir)
+                if state == "nothing":
+                    outcome["empty"].append(job.key)
+                    continue
+                assert job.run_dir is not None
+                if job.run_dir.exists():
+                    outcome["exists"].append(job.key)
+                    continue
+                if _imported_hash(run_dir, state) != _expected_hash(job.kwargs):
+                    outcome["mismatch"].append(job.key)
+                    continue
+                if staging not in run_dir.parents:  # a batch directory's: copied, kept there
+                    copy = staging / "copies" / rel
+                    shutil.copytree(run_dir, copy)
+                    run_dir = copy
+                if state == "finished":
+                    _repoint_result(run_dir, job.run_dir)
+                # one rename on the same file system: the run appears whole or not at all
+                job.run_dir.parent.mkdir(parents=True, exist_ok=True)
+                run_dir.rename(job.run_dir)
+                outcome[state].append(job.key)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return outcome
+
+
+def _expected_hash(kwargs: Mapping[str, Any]) -> str:
+    args = {k: v for k, v in kwargs.items() if k != "progress"}
+    return config_hash(transfer_spec(**args).config)
+
+
+def _imported_hash(run_dir: Path, state: str) -> str | None:
+    """The config hash a run directory was made under (``result.json``'s when finished,
+    else ``config.json``'s); None when unreadable."""
+    name = "result.json" if state == "finished" else "config.json"
+    try:
+        value = json.loads((run_dir / name).read_text()).get("config_hash")
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return None
+    return value if isinstance(value, str) else None
+
+
+def _repoint_result(run_dir: Path, final_dir: Path) -> None:
+    """``result.json``'s policy path, written on the other machine, made this one's."""
+    path = run_dir / "result.json"
+    result = json.loads(path.read_text())
+    if "policy" in result:
+        result["policy"] = str(final_dir / "policy.pt")
+    atomic_write_json(path, result)

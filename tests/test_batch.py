@@ -1,0 +1,155 @@
+"""`pved batch`: a protocol's transfer runs exported, run elsewhere, packed and imported.
+
+One Reacher protocol at the smoke budget gets its pairs, seed-0 model and bank made
+here (the stages a batch does not carry); its runs then go through a batch as they would
+to a machine that cannot reach the protocol, and must come back as the protocol's own.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from pved import __version__
+from pved.cli import main
+from pved.experiments.batch import BATCH_FILE, LOG_FILE, export_batch, import_batch
+from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.stages import transfer, transfer_spec
+from pved.runs import Run, atomic_write_json
+
+
+def _cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
+    plan = ProtocolPlan.load(out)
+    return {j.key: dict(j.kwargs) for j in plan.expand(_finished_results(plan))}
+
+
+@pytest.fixture(scope="module")
+def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A reacher smoke protocol (pved, ppo) whose transfer runs can all start: its pairs,
+    bank and seed-0 model made by the plan's own jobs, no transfer run made."""
+    out = tmp_path_factory.mktemp("proto")
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", out)
+    atomic_write_json(out / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    jobs = {j.key: j for j in plan.expand({})}
+    for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
+        jobs[key].fn(**jobs[key].kwargs)
+    return out
+
+
+@pytest.mark.slow
+def test_runs_made_in_a_batch_are_the_protocols_own(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    batch = tmp_path / "batch"
+    code, out, err = _cli(capsys, "batch", "export", "--protocol", protocol, "--batch", batch,
+                          "--limit", "3")  # fmt: skip
+    assert code == 0, err
+    exported = json.loads((batch / BATCH_FILE).read_text())
+    keys = [j["key"] for j in exported["jobs"]]
+    # the tuning runs first, as the protocol orders them
+    assert len(keys) == 3 and all("/transfer/pved-beta" in k for k in keys)
+    # the inputs travel with the batch, and no path points back at this machine
+    assert (batch / "runs/reacher/model/pved/seed0/model.pt").exists()
+    assert (batch / "runs/reacher/bank/Reacher3-Push/seed0/bank.npz").exists()
+    assert str(protocol) not in (batch / BATCH_FILE).read_text()
+
+    packed = tmp_path / "packed"
+    code, out, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
+                          "--pack", packed)  # fmt: skip
+    assert code == 0, err
+    log = json.loads((batch / LOG_FILE).read_text())
+    assert [log["jobs"][k]["state"] for k in keys] == ["finished"] * 3
+    tars = sorted(packed.glob("runs*.tar.gz"))
+    assert tars and (packed / LOG_FILE).exists()
+    with tarfile.open(tars[0]) as tar:
+        assert not any("model.pt" in n or "bank.npz" in n for n in tar.getnames())
+
+    code, out, err = _cli(capsys, "batch", "import", "--protocol", protocol, *tars)
+    assert code == 0, err
+    assert out.startswith("3 finished, 0 partial, 0 exists")
+    jobs = _jobs_by_key(protocol)
+    for key in keys:
+        spec = transfer_spec(**{k: v for k, v in jobs[key].items() if k != "progress"})
+        # done under the config the protocol gives the run here: it will not be redone
+        assert Run(spec.run_dir, spec.config).is_done()
+        result = json.loads((spec.run_dir / "result.json").read_text())
+        assert Path(result["policy"]) == spec.run_dir / "policy.pt"
+        assert transfer(**jobs[key]) == result  # returns at once: nothing retrained
+    assert set(keys) <= set(_finished_results(ProtocolPlan.load(protocol)))
+
+    # a second import keeps what is here, and the next export leaves the imported out
+    results = sorted((protocol / "runs/reacher/transfer").glob("*/seed*/result.json"))
+    before = {p: p.stat().st_mtime_ns for p in results}
+    assert sorted(import_batch(protocol, tars)["exists"]) == sorted(keys)
+    assert before == {p: p.stat().st_mtime_ns for p in results}
+    again = export_batch(protocol, tmp_path / "batch2")
+    assert again and not set(again) & set(keys)
+
+    # a run directory under another run's name is refused on its config hash
+    mismatch_key = next(k for k in again if "/transfer/pved-beta" in k)
+    wrong = json.loads((tmp_path / "batch2" / BATCH_FILE).read_text())
+    rel = next(j["run_dir"] for j in wrong["jobs"] if j["key"] == mismatch_key)
+    done_dir = transfer_spec(**{k: v for k, v in jobs[keys[0]].items() if k != "progress"}).run_dir
+    shutil.copytree(done_dir, tmp_path / "batch2" / "runs" / rel)
+    outcome = import_batch(protocol, [tmp_path / "batch2"])
+    assert outcome["mismatch"] == [mismatch_key] and outcome["finished"] == []
+    assert not (protocol / "runs" / rel).exists()
+
+
+@pytest.mark.slow
+def test_a_batch_stops_at_its_deadline(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    batch = tmp_path / "batch"
+    export_batch(protocol, batch, limit=2)
+    code, _, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "1",
+                          "--deadline-s", "2")  # fmt: skip
+    assert code == 0, err
+    log = json.loads((batch / LOG_FILE).read_text())
+    states = [entry["state"] for entry in log["jobs"].values()]
+    first = next(iter(log["jobs"].values()))
+    assert first["killed_at_deadline"] is True and states == ["nothing", "not started"]
+    assert log["elapsed_s"] < 30
+    # nothing to bring back, so nothing is packed
+    code, _, err = _cli(capsys, "batch", "pack", "--batch", batch, "--to", tmp_path / "p")
+    assert code == 0 and not list((tmp_path / "p").glob("*.tar.gz"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["import", "--protocol", "{proto}", "{junk}"], "is not a readable tar file"),
+        (["import", "--protocol", "{proto}", "{evil}"], "not a batch's run"),
+        (["run", "--batch", "{proto}"], "is not a batch directory"),
+        (["export", "--protocol", "{tmp}", "--batch", "{tmp}/b"], "is not a protocol directory"),
+        (["export", "--protocol", "{proto}", "--batch", "{proto}"], "exists"),
+    ],
+)
+def test_batch_bad_input_is_one_line(
+    protocol: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    argv: list[str],
+    message: str,
+) -> None:
+    junk = tmp_path / "junk.tar.gz"
+    junk.write_bytes(b"not a tar file at all")
+    evil = tmp_path / "evil.tar.gz"
+    (tmp_path / "x").write_text("x")
+    with tarfile.open(evil, "w:gz") as tar:
+        tar.add(tmp_path / "x", arcname="../outside")
+    paths = {"proto": protocol, "junk": junk, "evil": evil, "tmp": tmp_path}
+    code, _, err = _cli(capsys, "batch", *(a.format(**paths) for a in argv))
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path.parent / "outside").exists()
