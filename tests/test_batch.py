@@ -94,6 +94,8 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     assert before == {p: p.stat().st_mtime_ns for p in results}
     again = export_batch(protocol, tmp_path / "batch2")
     assert again and not set(again) & set(keys)
+    # --skip leaves the front of that order to a protocol running here
+    assert export_batch(protocol, tmp_path / "batch3", skip=1, limit=1) == again[1:2]
 
     # a run directory under another run's name is refused on its config hash
     mismatch_key = next(k for k in again if "/transfer/pved-beta" in k)

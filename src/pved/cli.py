@@ -192,7 +192,7 @@ def _cmd_batch(args: argparse.Namespace) -> None:
     from pved.experiments import batch
 
     if args.action == "export":
-        keys = batch.export_batch(args.protocol, args.batch, limit=args.limit)
+        keys = batch.export_batch(args.protocol, args.batch, limit=args.limit, skip=args.skip)
         print(f"{args.batch}: {len(keys)} runs")
     elif args.action == "run":
         log = batch.run_batch(
@@ -494,6 +494,12 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
     a.add_argument("--batch", type=Path, required=True, help="a new batch directory")
     a.add_argument("--limit", type=int, help="at most this many runs")
+    a.add_argument(
+        "--skip",
+        type=int,
+        default=0,
+        help="leave out the first N (those a protocol running here reaches next)",
+    )
     a = actions.add_parser("run", help="run a batch's runs side by side")
     a.add_argument("--batch", type=Path, required=True)
     a.add_argument("--workers", type=int, help="runs side by side (default: the CPUs)")

@@ -97,19 +97,27 @@ def _read_batch(batch_dir: Path) -> tuple[dict[str, Any], list[BatchJob]]:
 
 
 def export_batch(
-    protocol_dir: Path | str, batch_dir: Path | str, *, limit: int | None = None
+    protocol_dir: Path | str,
+    batch_dir: Path | str,
+    *,
+    limit: int | None = None,
+    skip: int = 0,
 ) -> list[str]:
     """Write the protocol's transfer runs that can start now and have not started here
     (no run directory) into ``batch_dir``, in the order the protocol would run them (the
     tuning runs first), at most ``limit``; returns their job keys.
 
-    ``batch_dir`` must not exist: a batch is written once, then run and imported."""
+    ``skip``: leave the first ``skip`` of them out, for a protocol that keeps running
+    here meanwhile (those are the runs it reaches next). ``batch_dir`` must not exist: a
+    batch is written once, then run and imported."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     batch = Path(batch_dir)
     if batch.exists():
         raise PvedError(f"{batch} exists; a batch goes into a new directory")
     if limit is not None and limit < 1:
         raise PvedError(f"--limit must be at least 1, not {limit}")
+    if skip < 0:
+        raise PvedError(f"--skip must be at least 0, not {skip}")
     results = _finished_results(plan)
     ready = [
         job
@@ -121,7 +129,7 @@ def export_batch(
         and all(dep in results for dep in job.deps)
     ]
     ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
-    ready = ready[:limit]
+    ready = ready[skip:][:limit]
     jobs: list[dict[str, Any]] = []
     inputs: dict[str, str] = {}
     for job in ready:
