@@ -74,6 +74,22 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     with tarfile.open(tars[0]) as tar:
         assert not any("model.pt" in n or "bank.npz" in n for n in tar.getnames())
 
+    # a batch directory whose first run is still going: --finished-only leaves it there
+    partial = tmp_path / "partial"
+    shutil.copytree(batch, partial)
+    first = partial / "runs" / exported["jobs"][0]["run_dir"]
+    (first / "result.json").unlink()
+    (first / "checkpoints").mkdir(exist_ok=True)
+    shutil.copy(first / "policy.pt", first / "checkpoints" / "step000000004096.pt")
+    elsewhere = tmp_path / "elsewhere"
+    shutil.copytree(protocol, elsewhere)
+    outcome = import_batch(elsewhere, [partial], finished_only=True)
+    assert outcome["empty"] == keys[:1] and sorted(outcome["finished"]) == sorted(keys[1:])
+    outcome = import_batch(elsewhere, [partial])
+    assert outcome["partial"] == keys[:1]
+    moved = elsewhere / "runs" / exported["jobs"][0]["run_dir"]
+    assert not (moved / "result.json").exists() and (moved / "checkpoints").is_dir()
+
     code, out, err = _cli(capsys, "batch", "import", "--protocol", protocol, *tars)
     assert code == 0, err
     assert out.startswith("3 finished, 0 partial, 0 exists")
@@ -122,6 +138,9 @@ def test_a_batch_stops_at_its_deadline(
     first = next(iter(log["jobs"].values()))
     assert first["killed_at_deadline"] is True and states == ["nothing", "not started"]
     assert log["elapsed_s"] < 30
+    # a run cut before its first checkpoint has nothing to import
+    outcome = import_batch(protocol, [batch])
+    assert outcome["finished"] == outcome["partial"] == []
     # nothing to bring back, so nothing is packed
     code, _, err = _cli(capsys, "batch", "pack", "--batch", batch, "--to", tmp_path / "p")
     assert code == 0 and not list((tmp_path / "p").glob("*.tar.gz"))

@@ -208,7 +208,7 @@ def _cmd_batch(args: argparse.Namespace) -> None:
         for path in batch.pack_batch(args.batch, args.to):
             print(path)
     else:
-        outcome = batch.import_batch(args.protocol, args.sources)
+        outcome = batch.import_batch(args.protocol, args.sources, finished_only=args.finished_only)
         print(", ".join(f"{len(keys)} {what}" for what, keys in outcome.items()))
         for what in ("mismatch", "unknown"):
             for key in outcome[what]:
@@ -512,6 +512,11 @@ def build_parser() -> argparse.ArgumentParser:
     a = actions.add_parser("import", help="a batch's runs into the protocol")
     a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
     a.add_argument("sources", nargs="+", type=Path, help="tar files or batch directories")
+    a.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="leave unfinished runs out (from a batch directory whose run goes on)",
+    )
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("plot", help="redraw a protocol's curves and summary from its runs")

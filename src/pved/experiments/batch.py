@@ -322,13 +322,16 @@ def _extract(tar_path: Path, dest: Path) -> None:
         raise PvedError(f"{tar_path} is not a readable tar file ({_one_line(err)})") from None
 
 
-def import_batch(protocol_dir: Path | str, sources: Sequence[Path | str]) -> dict[str, list[str]]:
+def import_batch(
+    protocol_dir: Path | str, sources: Sequence[Path | str], *, finished_only: bool = False
+) -> dict[str, list[str]]:
     """Move the run directories of ``sources`` (tar files from :func:`pack_batch`, or batch
     directories) into the protocol's ``runs/``; returns job keys by outcome:
     ``finished`` and ``partial`` (imported), ``exists`` (a run directory is here already:
     kept), ``unknown`` (no run of this protocol that can start now), ``mismatch`` (its
     config hash is not the one this run has here) and ``empty`` (no result, no
-    checkpoint)."""
+    checkpoint, or only a checkpoint when ``finished_only``: a batch still running
+    leaves its unfinished runs where they are)."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     results = _finished_results(plan)
     expected = {
@@ -362,7 +365,7 @@ def import_batch(protocol_dir: Path | str, sources: Sequence[Path | str]) -> dic
                     outcome["unknown"].append(rel)
                     continue
                 state = _run_state(run_dir)
-                if state == "nothing":
+                if state == "nothing" or (finished_only and state == "partial"):
                     outcome["empty"].append(job.key)
                     continue
                 assert job.run_dir is not None
