@@ -105,6 +105,27 @@ def test_bootstrap_difference_of_two_independent_groups() -> None:
         bootstrap_difference(a, b, reps=0)
 
 
+def test_runs_that_share_a_seed_are_drawn_together() -> None:
+    """Five seeds run with three source policies each, the source changing nothing: the
+    15 runs hold the evidence of 5, and the interval must say so."""
+    per_seed = np.array([1.0, 0.0, 0.0, 1.0, 0.0])
+    a, seeds = np.repeat(per_seed, 3), np.repeat([20000, 40000, 60000, 80000, 100000], 3)
+    b = np.zeros(15)
+    runs = bootstrap_difference(a, b, reps=4000, seed=1)
+    clustered = bootstrap_difference(a, b, reps=4000, seed=1, clusters_a=list(seeds))
+    five = bootstrap_difference(per_seed, b, reps=4000, seed=1)
+    assert clustered["diff"] == runs["diff"] == five["diff"]
+    width = {k: d["diff_ci"][1] - d["diff_ci"][0] for k, d in
+             (("runs", runs), ("clustered", clustered), ("five", five))}  # fmt: skip
+    assert width["clustered"] > 1.3 * width["runs"]  # sqrt(3) in the limit
+    assert abs(width["clustered"] - width["five"]) < 0.1
+    # one label per run is the run bootstrap, to the last digit
+    singletons = bootstrap_difference(a, b, reps=500, seed=2, clusters_a=list(range(15)))
+    assert singletons == bootstrap_difference(a, b, reps=500, seed=2)
+    with pytest.raises(PvedError, match="cluster labels"):
+        bootstrap_difference(a, b, clusters_a=[1, 2])
+
+
 def test_combination_rule() -> None:
     assert combine([HOLDS, HOLDS]) == HOLDS
     assert combine([HOLDS, UNDECIDED]) == UNDECIDED

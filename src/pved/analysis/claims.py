@@ -4,8 +4,9 @@
 Every claim is made of parts, each a statistical test on one source-target pair with
 three outcomes: ``holds``, ``does not hold`` or ``undecided`` (the runs cannot tell, or
 there are none). A claim holds only if every part holds, does not hold if any part does
-not, and is undecided otherwise. All intervals are 95% percentile bootstraps over runs
-(:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples, seed 0).
+not, and is undecided otherwise. All intervals are 95% percentile bootstraps over PPO
+seeds (:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples, seed 0): the
+runs of one seed, a shaped method's three source policies, are drawn together.
 
 Per run (a seed x source policy of one method on one pair):
 
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -237,6 +238,14 @@ def _scores(pairs: dict[str, _Pair], pair: str, method: str, score: str) -> np.n
     return out
 
 
+def _seeds(pairs: dict[str, _Pair], pair: str, method: str) -> list[Hashable]:
+    """The PPO seed of each of ``method``'s runs on ``pair``, in ``_scores``' order: the
+    bootstrap's clusters (a shaped method runs each evaluation seed with every source
+    policy). A run without a recorded seed is a cluster of its own."""
+    runs = pairs[pair].methods[method]["runs"]
+    return [r["seed"] if "seed" in r else ("run", i) for i, r in enumerate(runs)]
+
+
 # ---------------------------------------------------------------------------- tests
 
 
@@ -270,7 +279,14 @@ class _Judge:
             if isinstance(xa, str) or isinstance(xb, str):
                 self._diffs[key] = xa if isinstance(xa, str) else str(xb)
             else:
-                d = bootstrap_difference(xa, xb, reps=REPS, seed=SEED)
+                d = bootstrap_difference(
+                    xa,
+                    xb,
+                    reps=REPS,
+                    seed=SEED,
+                    clusters_a=_seeds(self.pairs, pair, a),
+                    clusters_b=_seeds(self.pairs, pair, b),
+                )
                 d["tol"] = _tolerance(xa, xb)
                 self._diffs[key] = d
         return self._diffs[key]
@@ -481,8 +497,9 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
             for p in pairs.values()
         },
         "definitions": {
-            "ci": f"{CI_SIZE:.0%} percentile bootstrap over runs, groups resampled "
-            f"independently, {REPS} resamples, seed {SEED}",
+            "ci": f"{CI_SIZE:.0%} percentile bootstrap over PPO seeds (the runs of one "
+            f"seed drawn together), groups resampled independently, {REPS} resamples, "
+            f"seed {SEED}",
             "final": "a run's metric in summary.json",
             "early": f"mean of a run's evaluation points at steps <= {EARLY_FRACTION:.0%} "
             "of its last evaluation step",
@@ -566,7 +583,8 @@ def claims_markdown(result: dict[str, Any]) -> str:
         lines.append(f"- {name}{title} ({p['metric']}): runs per method: {runs}")
     lines += [
         "",
-        "Intervals: 95% percentile bootstrap over runs (2000 resamples). A part holds or "
+        "Intervals: 95% percentile bootstrap over PPO seeds, the runs of one seed (a "
+        "shaped method's source policies) drawn together (2000 resamples). A part holds or "
         "does not hold only where its interval excludes the bar; a claim holds if every "
         "part holds, does not hold if any part does not. Scores: final (the protocol's "
         f"final evaluation), early (evaluations at steps <= {EARLY_FRACTION:.0%} of the "

@@ -8,7 +8,7 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,8 +108,32 @@ def bootstrap_summary(
     }
 
 
+def _cluster_sums(
+    values: np.ndarray, labels: Sequence[Hashable] | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cluster sums and run counts, (k,) each, clusters in order of first appearance
+    (so that singleton clusters draw exactly as runs do)."""
+    if labels is None:
+        return values, np.ones_like(values)
+    if len(labels) != values.size:
+        raise PvedError(f"{len(labels)} cluster labels for {values.size} runs")
+    index: dict[Hashable, int] = {}
+    for label in labels:
+        index.setdefault(label, len(index))
+    ids = np.asarray([index[label] for label in labels])
+    sums = np.bincount(ids, weights=values, minlength=len(index))
+    counts = np.bincount(ids, minlength=len(index)).astype(np.float64)
+    return sums, counts
+
+
 def bootstrap_difference(
-    a: np.ndarray, b: np.ndarray, reps: int = 2000, seed: int = 0
+    a: np.ndarray,
+    b: np.ndarray,
+    reps: int = 2000,
+    seed: int = 0,
+    *,
+    clusters_a: Sequence[Hashable] | None = None,
+    clusters_b: Sequence[Hashable] | None = None,
 ) -> dict[str, Any]:
     """The difference of means between two independent groups of runs, mean(a) − mean(b),
     with its 95% percentile bootstrap CI; and each group's mean with its own CI from the
@@ -121,6 +145,12 @@ def bootstrap_difference(
     never paired); the interval holds the central 95% of the resampled differences
     (percentile method, as rliable's). Reproducible for a given ``seed``; numpy's global RNG
     is not touched.
+
+    ``clusters_a`` / ``clusters_b`` (one label per run, e.g. its PPO seed): runs with one
+    label are drawn together, as one unit (a cluster bootstrap: k labels, k draws of a
+    label, the resample's mean over all the runs drawn). Runs that share a seed are not
+    independent, and drawing them apart would narrow the interval beyond the evidence.
+    Unique labels, or None, give the run bootstrap above exactly.
 
     Returns ``{"diff": d, "diff_ci": [lo, hi], "a": {"runs": n_a, "mean": m, "mean_ci":
     [lo, hi]}, "b": {...}}``. A group of one run contributes its value without spread.
@@ -141,9 +171,11 @@ def bootstrap_difference(
     for name, values in groups.items():
         if values.ndim != 1:
             raise PvedError(f"bootstrap_difference wants 1-D run scores, got {values.shape}")
-        # (reps, n) indices: each row is one resample of the group's runs.
-        picks = rng.integers(0, values.size, size=(reps, values.size))
-        resampled[name] = values[picks].mean(axis=1)  # (reps,)
+        labels = clusters_a if name == "a" else clusters_b
+        sums, counts = _cluster_sums(values, labels)
+        # (reps, k) indices: each row is one resample of the group's k clusters.
+        picks = rng.integers(0, sums.size, size=(reps, sums.size))
+        resampled[name] = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)  # (reps,)
         lo, hi = np.percentile(resampled[name], [tail, 100.0 - tail])
         result[name] = {
             "runs": int(values.size),
