@@ -147,6 +147,24 @@ def test_a_batch_stops_at_its_deadline(
 
 
 @pytest.mark.slow
+def test_a_failed_run_is_reported_and_the_rest_go_on(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    batch = tmp_path / "batch"
+    keys = export_batch(protocol, batch, limit=2)
+    data = json.loads((batch / BATCH_FILE).read_text())
+    data["jobs"][0]["kwargs"]["method"] = "no-such-model"
+    (batch / BATCH_FILE).write_text(json.dumps(data))
+    code, _, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
+                        "--pack", tmp_path / "p")  # fmt: skip
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"1 of 2 runs failed; {keys[0]}" in err and "no-such-model" in err
+    log = json.loads((batch / LOG_FILE).read_text())["jobs"]
+    assert "no-such-model" in log[keys[0]]["error"] and log[keys[1]]["state"] == "finished"
+    assert list((tmp_path / "p").glob("runs*.tar.gz"))  # what finished is packed anyway
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -189,6 +189,7 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> None:
+    from pved.errors import PvedError
     from pved.experiments import batch
 
     if args.action == "export":
@@ -204,6 +205,10 @@ def _cmd_batch(args: argparse.Namespace) -> None:
         if args.pack:
             for path in batch.pack_batch(args.batch, args.pack):
                 print(path)
+        failed = {k: e["error"] for k, e in log["jobs"].items() if "error" in e}
+        if failed:
+            key, error = next(iter(failed.items()))
+            raise PvedError(f"{len(failed)} of {len(states)} runs failed; {key}: {error}")
     elif args.action == "pack":
         for path in batch.pack_batch(args.batch, args.to):
             print(path)
