@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -94,6 +95,106 @@ def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> Non
             results[j.key] = _fake(0.5, ret=-3.0 if j.tags["beta"] == grid[0] else -1.0)
     plan.expand(results)
     assert plan.selection["reacher"]["pved"]["beta"] == grid[1]
+
+
+def _tune(
+    plan: ProtocolPlan, score_of_beta: Mapping[float, float]
+) -> tuple[list[float], dict[str, Any]]:
+    """Expand ``plan`` until pved's beta is chosen, each tuning run scoring
+    ``score_of_beta[beta]``; returns the betas tried, in order, and the results."""
+    results: dict[str, Any] = {}
+    tried: list[float] = []
+    for _ in range(10):
+        jobs = plan.expand(results)
+        for j in jobs:
+            if j.key in results:
+                continue
+            if "/transfer/pved-" in j.key:
+                if j.tags["init"] != 0:
+                    continue
+                if j.kwargs["beta"] not in tried:
+                    tried.append(j.kwargs["beta"])
+                results[j.key] = _fake(score_of_beta[j.kwargs["beta"]])
+            elif "/transfer/" not in j.key:
+                results[j.key] = _fake(0.0)
+        if "beta" in plan.selection["reacher"]["pved"]:
+            return tried, results
+    raise AssertionError("no beta was chosen")
+
+
+@pytest.mark.parametrize(
+    ("scores", "tried", "chosen"),
+    [
+        # the grid's largest beta is best: a decade up, then another, then the limit
+        ({0.1: 0.5, 0.01: 0.2, 1.0: 0.6, 10.0: 0.7}, [0.1, 0.01, 1.0, 10.0], 10.0),
+        # its smallest: down two decades, where the limit stops the search
+        ({0.1: 0.1, 0.01: 0.2, 0.001: 0.3, 0.0001: 0.4}, [0.1, 0.01, 0.001, 0.0001], 0.0001),
+        # a decade up does worse: the grid's edge is inside what was searched
+        ({0.1: 0.5, 0.01: 0.2, 1.0: 0.4}, [0.1, 0.01, 1.0], 0.1),
+        # a decade down, then back: 0.01 beats 0.001, and 0.1 is tried no more
+        ({0.1: 0.2, 0.01: 0.5, 0.001: 0.3}, [0.1, 0.01, 0.001], 0.01),
+    ],
+)
+def test_beta_search_goes_past_the_grid_while_its_edge_does_best(
+    tmp_path: Path, scores: dict[float, float], tried: list[float], chosen: float
+) -> None:
+    plan = ProtocolPlan(["reacher"], ["pved"], "smoke", tmp_path)
+    plan.budget = dataclasses.replace(plan.budget, beta_grid_extensions=2)
+    assert get_preset("reacher").beta_grid[:2] == (0.1, 0.01)
+    betas, results = _tune(plan, scores)
+    assert betas == tried
+    state = plan.selection["reacher"]["pved"]
+    assert state["beta"] == chosen
+    assert state["beta_grid"] == [0.1, 0.01]
+    assert state.get("beta_extended", []) == tried[2:]
+    # initialisation 1 is tuned at the chosen beta, under the grid's naming
+    jobs = plan.expand(results)
+    init1 = [j for j in jobs if "/transfer/" in j.key and j.tags["init"] == 1]
+    assert init1 and all(j.kwargs["beta"] == chosen for j in init1)
+    assert all(f"-beta{chosen:g}-init1-" in j.key for j in init1)
+
+
+def test_squared_distance_methods_search_higher_betas() -> None:
+    preset = get_preset("walker-hopper")
+    for method in ("pved-det-shared", "gupta2017"):
+        grid = preset.beta_grid_for(method)
+        assert grid[: len(preset.beta_grid)] == preset.beta_grid and max(grid) == 10.0
+    assert preset.beta_grid_for("pved") == preset.beta_grid
+
+
+def test_a_protocol_from_a_narrower_beta_search_is_carried_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import pved.experiments.protocol as protocol
+
+    monkeypatch.setattr(protocol, "run_jobs", lambda plan, **kwargs: None)
+    monkeypatch.setattr(protocol, "summarize", lambda out, report: {})
+    methods = ["pved-det-shared", "ppo"]
+    plan = ProtocolPlan(["reacher"], methods, "quick", tmp_path)
+    current = json.loads(json.dumps(plan.describe()))
+    # as an earlier pved wrote it: the common grid for det-shared, no extensions field
+    earlier = json.loads(json.dumps(current))
+    earlier["beta_grids"]["reacher"]["pved-det-shared"] = [0.1, 0.01, 0.001]
+    del earlier["budget"]["beta_grid_extensions"]
+    (tmp_path / "protocol.json").write_text(json.dumps({**earlier, "pved_version": "0.0.9"}))
+    protocol.run_protocol(["reacher"], budget="quick", methods=methods, out=tmp_path)
+    written = json.loads((tmp_path / "protocol.json").read_text())
+    assert written["beta_grids"] == current["beta_grids"]
+    assert written["earlier_plans"][0]["beta_grids"] == earlier["beta_grids"]
+    assert {k: written[k] for k in current} == current  # a second start matches as is
+    protocol.run_protocol(["reacher"], budget="quick", methods=methods, out=tmp_path)
+
+    # a grid that lost a value, another budget field, or other methods: refused
+    for change in (
+        lambda p: p["beta_grids"]["reacher"].__setitem__("pved-det-shared", [0.5]),
+        lambda p: p["budget"].__setitem__("model_inits", 2),
+        lambda p: p.__setitem__("methods", ["pved-det-shared"]),
+    ):
+        other = json.loads(json.dumps(earlier))
+        change(other)
+        (tmp_path / "protocol.json").write_text(json.dumps(other))
+        with pytest.raises(PvedError, match="holds a protocol with other settings"):
+            protocol.run_protocol(["reacher"], budget="quick", methods=methods, out=tmp_path)
 
 
 def test_plan_rejects_unknown_names(tmp_path: Path) -> None:

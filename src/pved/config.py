@@ -52,6 +52,16 @@ class TransferConfig:
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
 
+# The protocol's beta grid for the methods whose Eq. 10 term is a squared Euclidean
+# distance between point codes (``pved-det-shared``; Gupta's alpha) rather than PVED's KL
+# between Gaussians with learned variances. On walker-hopper their term started two to
+# three orders of magnitude smaller per unit of beta than PVED's, and both stood still at
+# every beta of the common grid; on reacher both chose its largest beta (docs/results.md).
+# The common grid's values come first, so its runs stay candidates and complete ties go
+# to them.
+SQUARED_DISTANCE_BETA_GRID: tuple[float, ...] = (0.1, 0.01, 0.001, 1.0, 10.0)
+
+
 @dataclass(frozen=True)
 class PairPreset:
     """Everything that defines one agent pair's experiment."""
@@ -93,7 +103,10 @@ class PairPreset:
     # on the tuning seeds (paper IV.A; the paper does not print its grid). Per-method
     # grids in ``method_beta_grids`` replace it for that method.
     beta_grid: tuple[float, ...] = (0.1, 0.01, 0.001)
-    method_beta_grids: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    method_beta_grids: tuple[tuple[str, tuple[float, ...]], ...] = (
+        ("pved-det-shared", SQUARED_DISTANCE_BETA_GRID),
+        ("gupta2017", SQUARED_DISTANCE_BETA_GRID),
+    )
     # Env steps of one transfer run under each protocol budget (see ``BUDGETS``).
     protocol_steps: tuple[tuple[str, int], ...] = (
         ("smoke", 8192),
@@ -149,6 +162,10 @@ class ProtocolBudget:
             seed is run once per source policy.
         model_inits: model initialisations (seeds 0..k-1) tried at the selected beta.
         beta_grid_size: how many of the grid's values to try (None: all).
+        beta_grid_extensions: how many decades the search may go past either end of the
+            grid: while the best beta so far is the largest (smallest) one tried, the next
+            decade up (down) is tried, so that the chosen beta lies inside what was
+            searched, or at this limit.
         eval_every, eval_episodes, final_eval_episodes: learning-curve schedule.
         pair_episodes, model_epochs, bank_episodes, policy_steps: sizes of the earlier
             stages; ``policy_steps`` only matters for policies the package does not ship.
@@ -160,6 +177,7 @@ class ProtocolBudget:
     source_policies: int = 3
     model_inits: int = 3
     beta_grid_size: int | None = None
+    beta_grid_extensions: int = 2
     eval_every: int | None = None
     eval_episodes: int | None = None
     final_eval_episodes: int | None = None
@@ -178,6 +196,7 @@ BUDGETS: dict[str, ProtocolBudget] = {
         source_policies=1,
         model_inits=2,
         beta_grid_size=2,
+        beta_grid_extensions=0,
         eval_every=4096,
         eval_episodes=16,
         final_eval_episodes=32,

@@ -4,7 +4,9 @@ as one job graph: ``pved protocol``.
 For each pair and each shaping method (a model name: ``pved``, a variant, ``gupta2017``):
 
 1. beta (Gupta's alpha) is chosen on the tuning seeds with model initialisation 0 and
-   source policy 0, from the pair's grid (``PairPreset.beta_grid_for``);
+   source policy 0, from the pair's grid (``PairPreset.beta_grid_for``), searching a
+   decade further while the best beta is at the end of what was tried (up to the
+   budget's ``beta_grid_extensions`` decades past the grid);
 2. the chosen beta is applied to model initialisations 1, 2, ... on the same seeds, and
    the initialisation that does best is kept (init 0's runs at that beta count too);
 3. the kept model and beta are evaluated on every evaluation seed with every source
@@ -29,6 +31,7 @@ import dataclasses
 import itertools
 import json
 import math
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,6 +107,21 @@ def _best(candidates: Sequence[Candidate]) -> Candidate:
         if cand.key > best.key:
             best = cand
     return best
+
+
+def _next_decade(
+    grid: Sequence[float], tried: Sequence[float], best: float, extensions: int
+) -> float | None:
+    """The beta to try next when ``best`` is the largest (smallest) beta tried: ten times
+    it (a tenth), unless that is more than ``extensions`` decades past the grid's end;
+    None when ``best`` lies inside what was tried or the limit is reached. A chosen beta
+    at the edge of the search says the optimum may lie beyond it (paper IV.A tunes beta
+    per method and task without printing a grid; docs/decisions.md)."""
+    if best >= max(tried) and best * 10 <= max(grid) * 10**extensions * (1 + 1e-9):
+        return float(f"{best * 10:.12g}")
+    if best <= min(tried) and best / 10 >= min(grid) / 10**extensions * (1 - 1e-9):
+        return float(f"{best / 10:.12g}")
+    return None
 
 
 def _beta_tag(beta: float) -> str:
@@ -352,22 +370,36 @@ class ProtocolPlan:
             model0 = add(self._model_job(pair, method, 0, (pairs_key,)))
             assert model0 is not None
             grid = self._grid(pair, method)
-            tuning: dict[tuple[float, int], list[Job]] = {}
-            for beta in grid:
-                tuning[(beta, 0)] = [
-                    self._transfer_job(pair, method, s, beta=beta, deps=(model0, bank_keys[0]))
-                    for s in b.tuning_seeds
-                ]
-            for group in tuning.values():
-                for job in group:
-                    add(job)
             state: dict[str, Any] = {"beta_grid": list(grid), "candidates": []}
             self.selection.setdefault(pair, {})[method] = state
-            beta_candidates = _candidates(tuning, results)
-            state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
-            if len(beta_candidates) < len(grid):
+            tuning: dict[tuple[float, int], list[Job]] = {}
+            tried = list(grid)
+            chosen_beta: float | None = None
+            while True:
+                for beta in tried:
+                    if (beta, 0) not in tuning:
+                        tuning[(beta, 0)] = [
+                            self._transfer_job(
+                                pair, method, s, beta=beta, deps=(model0, bank_keys[0])
+                            )
+                            for s in b.tuning_seeds
+                        ]
+                        for job in tuning[(beta, 0)]:
+                            add(job)
+                beta_candidates = _candidates(tuning, results)
+                state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
+                if len(beta_candidates) < len(tried):
+                    break
+                best_beta = _best(beta_candidates).beta
+                beyond = _next_decade(grid, tried, best_beta, b.beta_grid_extensions)
+                if beyond is None:
+                    chosen_beta = best_beta
+                    break
+                tried.append(beyond)
+            if len(tried) > len(grid):
+                state["beta_extended"] = tried[len(grid) :]
+            if chosen_beta is None:
                 continue
-            chosen_beta = _best(beta_candidates).beta
             state["beta"] = chosen_beta
             for init in range(1, b.model_inits):
                 model_key = add(self._model_job(pair, method, init, (pairs_key,)))
@@ -499,11 +531,25 @@ def run_protocol(
             existing = json.loads(plan_path.read_text())
         except json.JSONDecodeError:
             raise PvedError(f"{plan_path} is corrupt; remove it or use another --out") from None
-        if {k: existing.get(k) for k in description} != json.loads(json.dumps(description)):
-            raise PvedError(
-                f"{plan.out} holds a protocol with other settings "
-                f"(pairs {existing.get('pairs')}, methods {existing.get('methods')}, budget "
-                f"{existing.get('budget', {}).get('name')}); use another --out"
+        current = json.loads(json.dumps(description))
+        if {k: existing.get(k) for k in description} != current:
+            if not _widens(existing, current):
+                raise PvedError(
+                    f"{plan.out} holds a protocol with other settings "
+                    f"(pairs {existing.get('pairs')}, methods {existing.get('methods')}, "
+                    f"budget {existing.get('budget', {}).get('name')}); use another --out"
+                )
+            # A plan from before a wider beta search: it only gains tuning runs, and every
+            # finished run keeps its meaning, so it is carried on; the earlier plan is kept.
+            earlier = [*existing.pop("earlier_plans", []), existing]
+            atomic_write_json(
+                plan_path,
+                {**description, "pved_version": __version__, "earlier_plans": earlier},
+            )
+            print(
+                f"{plan_path}: the beta search is wider than this protocol's plan had it; "
+                "its finished runs are kept",
+                file=sys.stderr,
             )
     else:
         plan.out.mkdir(parents=True, exist_ok=True)
@@ -519,6 +565,30 @@ def run_protocol(
         backend=backend,
     )
     return summarize(plan.out, report)
+
+
+def _widens(existing: Mapping[str, Any], current: Mapping[str, Any]) -> bool:
+    """Whether plan ``current`` is plan ``existing`` with a wider beta search: the same
+    pairs, methods and transfer steps, every budget field ``existing`` records the same
+    (a field it predates may be new), and each of its beta grids a part of the current
+    one."""
+    if any(existing.get(k) != current[k] for k in ("pairs", "methods", "transfer_steps")):
+        return False
+    old_budget = existing.get("budget")
+    if not isinstance(old_budget, dict) or any(
+        current["budget"].get(k, object()) != v for k, v in old_budget.items()
+    ):
+        return False
+    old_grids = existing.get("beta_grids")
+    if not isinstance(old_grids, dict) or set(old_grids) != set(current["beta_grids"]):
+        return False
+    for pair, grids in current["beta_grids"].items():
+        old = old_grids[pair]
+        if not isinstance(old, dict) or set(old) != set(grids):
+            return False
+        if any(not set(old[m]) <= set(grid) for m, grid in grids.items()):
+            return False
+    return True
 
 
 def _finished_results(plan: ProtocolPlan) -> dict[str, Any]:
