@@ -426,6 +426,23 @@ def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) ->
     assert report.attempts == {"f": 2, "g": 1} and not report.failed
 
 
+def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
+    # a pool worker still alive when run_jobs returns would be joined at interpreter exit
+    # (multiprocessing's rule for non-daemon children): a finished test run that never
+    # exits. The replaced pool's workers count too.
+    import multiprocessing
+
+    _ship_this_module_to("processes")
+    jobs = [
+        Job("f", _dies_once, {"marker": str(tmp_path / "died")}),
+        Job("g", _ok, {"value": 6}, deps=("f",)),
+        Job("h", _ok, {"value": 7}),
+    ]
+    report = run_jobs(_FixedPlan(jobs), workers=2, retries=1, live=False, backend="processes")
+    assert not report.failed
+    assert multiprocessing.active_children() == []
+
+
 def test_runner_backend_errors_are_one_line() -> None:
     with pytest.raises(PvedError, match="unknown backend 'dask'"):
         resolve_backend("dask")

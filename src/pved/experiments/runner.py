@@ -268,9 +268,18 @@ class _ProcessExecutor:
             raise RuntimeError("its worker process died (killed, or out of memory)") from None
 
     def shutdown(self) -> None:
-        # not waiting: after an error or Ctrl-C the running jobs are abandoned (Ctrl-C
-        # reaches the workers too; a killed driver takes them along, see above)
+        # Not waiting: after an error or Ctrl-C the running jobs are abandoned (Ctrl-C
+        # reaches the workers too; a killed driver takes them along, see above). The
+        # workers are ended here rather than left to the pool's stop messages: one that
+        # missed its message (seen once, in CI on a loaded machine) kept the interpreter
+        # from exiting, since multiprocessing joins its non-daemon children at exit.
+        workers = list((getattr(self.pool, "_processes", None) or {}).values())
         self.pool.shutdown(wait=False, cancel_futures=True)
+        for worker in workers:
+            if worker.is_alive():
+                worker.terminate()
+        for worker in workers:
+            worker.join(timeout=10)
 
 
 def _last_step(metrics: Path) -> int:
