@@ -97,6 +97,22 @@ def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> Non
     assert plan.selection["reacher"]["pved"]["beta"] == grid[1]
 
 
+def test_scores_within_the_metric_resolution_tie_and_go_to_the_return() -> None:
+    from pved.experiments.protocol import Candidate, _best
+
+    # walker-hopper: a Hopper that falls at once (x -0.02 m, return 5) against one that
+    # stands (x -0.13 m, return 1000), then one that walks (x 9.0 m)
+    falls = Candidate(beta=10.0, init=0, scores=(-0.02,) * 3, returns=(5.0,) * 3)
+    stands = Candidate(beta=0.1, init=0, scores=(-0.13,) * 3, returns=(1000.0,) * 3)
+    walks = Candidate(beta=0.01, init=0, scores=(9.0,) * 3, returns=(900.0,) * 3)
+    resolution = get_preset("walker-hopper").metric_resolution
+    assert resolution == 0.5
+    assert _best([falls, stands]) is falls  # as they are, centimetres decide
+    assert _best([falls, stands], resolution) is stands
+    assert _best([falls, stands, walks], resolution) is walks
+    assert get_preset("reacher").metric_resolution is None
+
+
 def _tune(
     plan: ProtocolPlan, score_of_beta: Mapping[float, float]
 ) -> tuple[list[float], dict[str, Any]]:

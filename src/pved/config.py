@@ -81,6 +81,10 @@ class PairPreset:
     # The paper's performance measure on the target task (IV.A): a key of
     # ``evaluate_policy``'s result, computed from the ``info`` entries ``eval_info_keys``.
     metric: str = "success_rate"
+    # The protocol's tuning compares mean scores rounded to a multiple of this (None:
+    # as they are): below it, a difference between tuning candidates is noise, and the
+    # tie goes to the mean final return.
+    metric_resolution: float | None = None
     eval_info_keys: tuple[str, ...] = ()
     # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
     policy: PPOConfig = field(default_factory=PPOConfig)
@@ -298,6 +302,10 @@ def _locomotion_preset(
         # Curve has no task parameter: bank episodes are drawn at random per episode.
         bank_match_keys=(),
         metric="x_position_mean",
+        # A body that stands still or falls at once drifts a few cm to a metre; without
+        # this, walker-hopper's tuning chose between such runs by centimetres (a beta at
+        # which the Hopper falls at the first step "beat" one at which it stands).
+        metric_resolution=0.5,
         eval_info_keys=("x_position",),
         policy=policy,
         policy_overrides=tuple(

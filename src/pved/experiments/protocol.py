@@ -94,17 +94,22 @@ class Candidate:
     scores: tuple[float, ...]  # the metric of each tuning seed's run
     returns: tuple[float, ...]  # the final return of each (the tie-breaker)
 
-    @property
-    def key(self) -> tuple[float, float]:
-        return (float(np.mean(self.scores)), float(np.mean(self.returns)))
+    def key(self, resolution: float | None = None) -> tuple[float, float]:
+        """(mean score, mean return), the score rounded to a multiple of ``resolution``
+        when one is given."""
+        score = float(np.mean(self.scores))
+        if resolution:
+            score = float(round(score / resolution))
+        return (score, float(np.mean(self.returns)))
 
 
-def _best(candidates: Sequence[Candidate]) -> Candidate:
+def _best(candidates: Sequence[Candidate], resolution: float | None = None) -> Candidate:
     """The candidate with the highest mean score (then mean return); the first on ties,
-    so the grid's order decides a complete tie."""
+    so the grid's order decides a complete tie. Mean scores that round to the same
+    multiple of ``resolution`` (the preset's ``metric_resolution``) are ties."""
     best = candidates[0]
     for cand in candidates[1:]:
-        if cand.key > best.key:
+        if cand.key(resolution) > best.key(resolution):
             best = cand
     return best
 
@@ -390,7 +395,7 @@ class ProtocolPlan:
                 state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
                 if len(beta_candidates) < len(tried):
                     break
-                best_beta = _best(beta_candidates).beta
+                best_beta = _best(beta_candidates, preset.metric_resolution).beta
                 beyond = _next_decade(grid, tried, best_beta, b.beta_grid_extensions)
                 if beyond is None:
                     chosen_beta = best_beta
@@ -421,7 +426,7 @@ class ProtocolPlan:
             state["candidates"] = [dataclasses.asdict(c) for c in _candidates(tuning, results)]
             if len(init_candidates) < b.model_inits:
                 continue
-            chosen_init = _best(init_candidates).init
+            chosen_init = _best(init_candidates, preset.metric_resolution).init
             state["init"] = chosen_init
             model_key = f"{pair}/model/{method}/init{chosen_init}"
             for k in range(b.source_policies):
