@@ -170,7 +170,7 @@ def test_beta_search_goes_past_the_grid_while_its_edge_does_best(
     assert all(f"-beta{chosen:g}-init1-" in j.key for j in init1)
 
 
-def test_squared_distance_methods_search_higher_betas() -> None:
+def test_point_code_methods_search_higher_betas() -> None:
     preset = get_preset("walker-hopper")
     for method in ("pved-det-shared", "gupta2017"):
         grid = preset.beta_grid_for(method)

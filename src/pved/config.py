@@ -52,14 +52,14 @@ class TransferConfig:
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
 
-# The protocol's beta grid for the methods whose Eq. 10 term is a squared Euclidean
-# distance between point codes (``pved-det-shared``; Gupta's alpha) rather than PVED's KL
+# The protocol's beta grid for the methods whose Eq. 10 term is the Euclidean distance
+# between point codes (``pved-det-shared``; Gupta's alpha) rather than PVED's KL
 # between Gaussians with learned variances. On walker-hopper their term started two to
 # three orders of magnitude smaller per unit of beta than PVED's, and both stood still at
 # every beta of the common grid; on reacher both chose its largest beta (docs/results.md).
 # The common grid's values come first, so its runs stay candidates and complete ties go
 # to them.
-SQUARED_DISTANCE_BETA_GRID: tuple[float, ...] = (0.1, 0.01, 0.001, 1.0, 10.0)
+POINT_CODE_BETA_GRID: tuple[float, ...] = (0.1, 0.01, 0.001, 1.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -108,8 +108,8 @@ class PairPreset:
     # grids in ``method_beta_grids`` replace it for that method.
     beta_grid: tuple[float, ...] = (0.1, 0.01, 0.001)
     method_beta_grids: tuple[tuple[str, tuple[float, ...]], ...] = (
-        ("pved-det-shared", SQUARED_DISTANCE_BETA_GRID),
-        ("gupta2017", SQUARED_DISTANCE_BETA_GRID),
+        ("pved-det-shared", POINT_CODE_BETA_GRID),
+        ("gupta2017", POINT_CODE_BETA_GRID),
     )
     # Env steps of one transfer run under each protocol budget (see ``BUDGETS``).
     protocol_steps: tuple[tuple[str, int], ...] = (
