@@ -157,8 +157,12 @@ def test_beta_search_goes_past_the_grid_while_its_edge_does_best(
     plan = ProtocolPlan(["reacher"], ["pved"], "smoke", tmp_path)
     plan.budget = dataclasses.replace(plan.budget, beta_grid_extensions=2)
     assert get_preset("reacher").beta_grid[:2] == (0.1, 0.01)
+    before = plan.expected_steps()
     betas, results = _tune(plan, scores)
     assert betas == tried
+    # the live view's total counts the runs past the grid
+    per_beta = len(plan.budget.tuning_seeds) * get_preset("reacher").transfer_steps("smoke")
+    assert plan.expected_steps() - before == per_beta * (len(tried) - 2)
     state = plan.selection["reacher"]["pved"]
     assert state["beta"] == chosen
     assert state["beta_grid"] == [0.1, 0.01]

@@ -464,7 +464,8 @@ class ProtocolPlan:
         ]
 
     def expected_steps(self) -> int:
-        """Env steps of every RL run of the plan (policies to train included)."""
+        """Env steps of every RL run of the plan (policies to train included); the beta
+        search's steps past the grid count once :meth:`expand` has added them."""
         b = self.budget
         total = 0
         for pair in self.pairs:
@@ -474,7 +475,9 @@ class ProtocolPlan:
             for method in self.methods:
                 runs = per_eval
                 if method not in REFERENCE_METHODS:
-                    tuning = len(self._grid(pair, method)) + b.model_inits - 1
+                    state = self.selection.get(pair, {}).get(method, {})
+                    extended = len(state.get("beta_extended", ()))
+                    tuning = len(self._grid(pair, method)) + extended + b.model_inits - 1
                     runs += tuning * len(b.tuning_seeds)
                 total += runs * steps
             if self.model_methods:
