@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean reproduce publish subspaces
+.PHONY: demo test lint system-deps clean reproduce publish subspaces archive restore
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -25,6 +25,17 @@ METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2
 reproduce: $(STAMP)
 	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
 		--out reports/$(PAIR)-$(BUDGET) $(if $(WORKERS),--workers $(WORKERS))
+
+# A protocol outlives the machine it runs on: `make archive` copies its finished runs,
+# slimmed (results, configs, curves, models; no checkpoints, datasets or banks), into
+# docs/protocol/<pair>-<budget>/runs/ to commit; `make restore` puts them back into
+# reports/<pair>-<budget>/, and `make reproduce` then goes on with the rest.
+archive: $(STAMP)
+	$(VENV)/bin/pved archive save --protocol reports/$(PAIR)-$(BUDGET) \
+		--archive docs/protocol/$(PAIR)-$(BUDGET)
+restore: $(STAMP)
+	$(VENV)/bin/pved archive restore --archive docs/protocol/$(PAIR)-$(BUDGET) \
+		--protocol reports/$(PAIR)-$(BUDGET)
 
 # "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
 # PVED's best evaluation run, into reports/<pair>-<budget>/subspaces/

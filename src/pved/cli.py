@@ -220,6 +220,16 @@ def _cmd_batch(args: argparse.Namespace) -> None:
                 print(f"  {what}: {key}")
 
 
+def _cmd_archive(args: argparse.Namespace) -> None:
+    from pved.experiments import archive
+
+    if args.action == "save":
+        counts = archive.save_archive(args.protocol, args.archive)
+    else:
+        counts = archive.restore_archive(args.archive, args.protocol)
+    print(f"{args.archive}: " + ", ".join(f"{n} {what}" for what, n in counts.items()))
+
+
 def _cmd_plot(args: argparse.Namespace) -> None:
     from pved.experiments.protocol import plot_protocols
 
@@ -523,6 +533,24 @@ def build_parser() -> argparse.ArgumentParser:
         help="leave unfinished runs out (from a batch directory whose run goes on)",
     )
     p.set_defaults(func=_cmd_batch)
+
+    p = sub.add_parser(
+        "archive",
+        help="a protocol's finished runs, slimmed to commit, and back",
+        description="save: copy a protocol's finished policy, model and transfer runs "
+        "(results, configs, evaluation curves, models; no checkpoints, datasets or banks) "
+        "into a directory small enough to commit; restore: put them back into a protocol "
+        "directory, where `pved protocol` takes them as done and runs the rest.",
+    )
+    actions = p.add_subparsers(dest="action", required=True)
+    for action, help_text in (
+        ("save", "the protocol's finished runs into the archive"),
+        ("restore", "the archive's runs into the protocol directory"),
+    ):
+        a = actions.add_parser(action, help=help_text)
+        a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
+        a.add_argument("--archive", type=Path, required=True, help="the archive directory")
+    p.set_defaults(func=_cmd_archive)
 
     p = sub.add_parser("plot", help="redraw a protocol's curves and summary from its runs")
     p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")

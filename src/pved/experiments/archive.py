@@ -1,0 +1,193 @@
+"""A protocol's finished runs, slimmed to what a later machine needs to carry it on.
+
+A protocol at the ``quick`` budget takes days of one core, more than one working session
+on a machine whose disk may not outlive it. ``pved archive save`` copies what its
+finished runs established into a directory small enough to commit (under
+``docs/protocol/<pair>-<budget>/``, beside the published summary); ``pved archive
+restore`` puts it back into a protocol directory, where ``pved protocol`` takes those runs
+as done and goes on with the rest.
+
+What is kept, per finished run (a run directory with ``result.json``):
+
+- every run: ``result.json``, ``config.json``;
+- policy and model runs: ``metrics.jsonl`` in full and the artefact the later stages
+  read (``policy.pt``, ``model.pt``): the transfer runs still to come need them, and their
+  digests are part of those runs' config hashes;
+- transfer runs: the evaluation rows of ``metrics.jsonl`` (the learning curves that
+  ``summary.json``, ``pved plot`` and ``pved claims`` read; the PPO loss rows stay in the
+  run's TensorBoard file), and ``policy.pt`` for PVED's own runs, which ``make
+  subspaces`` analyses.
+
+Left out: checkpoints and TensorBoard files, unfinished runs, and the pairing datasets and
+source banks (tens to hundreds of MB a pair): the protocol rebuilds those from the shipped
+policies when a restored plan needs them.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from pved.errors import PvedError
+from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.stages import train_model, train_policy, transfer
+from pved.runs import atomic_write_bytes, atomic_write_json
+
+RUNS = "runs"
+#: the stages whose finished runs are archived, and the artefact each one's result names
+ARTEFACTS = {train_policy: "policy.pt", train_model: "model.pt"}
+#: transfer runs of this method keep their policy (the subspaces report reads it)
+POLICY_KEPT_FOR = "pved"
+
+
+def _eval_rows(metrics: bytes) -> bytes:
+    """The lines of a ``metrics.jsonl`` that carry an evaluation (``eval/...``) value."""
+    kept = []
+    for line in metrics.decode().splitlines():
+        if not line.strip():
+            continue
+        row = json.loads(line)
+        if any(key.startswith("eval/") for key in row):
+            kept.append(line)
+    return ("\n".join(kept) + "\n").encode() if kept else b""
+
+
+def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[tuple[str, bytes]]:
+    """(name, content) of what the archive keeps of one finished run directory."""
+    for name in ("result.json", "config.json"):
+        yield name, (run_dir / name).read_bytes()
+    metrics = run_dir / "metrics.jsonl"
+    if job_fn is transfer:
+        if metrics.exists():
+            yield "metrics.jsonl", _eval_rows(metrics.read_bytes())
+        if method == POLICY_KEPT_FOR:
+            yield "policy.pt", (run_dir / "policy.pt").read_bytes()
+    else:
+        if metrics.exists():
+            yield "metrics.jsonl", metrics.read_bytes()
+        yield ARTEFACTS[job_fn], (run_dir / ARTEFACTS[job_fn]).read_bytes()
+
+
+def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str, int]:
+    """Copy the protocol's finished policy, model and transfer runs, slimmed (module
+    docstring), and its ``protocol.json`` into ``archive_dir``; returns counts:
+    ``written`` (runs new or changed in the archive) and ``unchanged``.
+
+    Files are written atomically and only when their content changed, so saving again
+    after more runs finish adds those runs and leaves the rest untouched."""
+    plan = ProtocolPlan.load(Path(protocol_dir))
+    archive = Path(archive_dir)
+    results = _finished_results(plan)
+    counts = {"written": 0, "unchanged": 0}
+    archive.mkdir(parents=True, exist_ok=True)
+    plan_bytes = (plan.out / PLAN_FILE).read_bytes()
+    if not (archive / PLAN_FILE).exists() or (archive / PLAN_FILE).read_bytes() != plan_bytes:
+        atomic_write_bytes(archive / PLAN_FILE, plan_bytes)
+    for job in plan.expand(results):
+        if job.key not in results or job.run_dir is None:
+            continue
+        if job.fn is not transfer and job.fn not in ARTEFACTS:
+            continue  # pairing datasets and source banks: rebuilt where needed
+        rel = job.run_dir.relative_to(plan.runs)
+        try:
+            files = list(_archived_files(job.fn, job.kwargs.get("method"), job.run_dir))
+        except (OSError, ValueError, UnicodeDecodeError) as err:
+            raise PvedError(f"finished run {job.key} cannot be archived: {err}") from None
+        changed = False
+        for name, content in files:
+            dest = archive / RUNS / rel / name
+            if dest.exists() and dest.read_bytes() == content:
+                continue
+            atomic_write_bytes(dest, content)
+            changed = True
+        counts["written" if changed else "unchanged"] += 1
+    return counts
+
+
+def _check_archived_run(run_dir: Path) -> None:
+    """An archived run must be whole: its result under the hash of its config, and the
+    artefact its stage's later runs read."""
+    try:
+        config = json.loads((run_dir / "config.json").read_text())
+        result = json.loads((run_dir / "result.json").read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise PvedError(f"archived run {run_dir} is unreadable ({err})") from None
+    if not isinstance(config, dict) or not isinstance(result, dict):
+        raise PvedError(f"archived run {run_dir} is not a pved run")
+    if result.get("config_hash") != config.get("config_hash"):
+        raise PvedError(f"archived run {run_dir}: result.json and config.json disagree")
+    inner = config.get("config")
+    stage = inner.get("stage") if isinstance(inner, dict) else None
+    artefact = {"policy": "policy.pt", "model": "model.pt"}.get(str(stage))
+    if artefact is not None and not (run_dir / artefact).is_file():
+        raise PvedError(f"archived run {run_dir} lacks its {artefact}")
+
+
+def _repoint_result(run_dir: Path, final_dir: Path) -> None:
+    """``result.json``'s paths to the run's own artefacts (``policy``, ``model``), written
+    where the run was made, made those of ``final_dir``; a path to an artefact the
+    archive left out is dropped rather than left pointing at another machine's disk."""
+    path = run_dir / "result.json"
+    result = json.loads(path.read_text())
+    for key in ("policy", "model"):
+        if isinstance(result.get(key), str):
+            name = Path(result[key]).name
+            if (run_dir / name).is_file():
+                result[key] = str(final_dir / name)
+            else:
+                del result[key]
+    atomic_write_json(path, result)
+
+
+def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[str, int]:
+    """Put an archive's runs into the protocol directory ``protocol_dir`` (created with the
+    archive's ``protocol.json`` when new); returns counts: ``restored`` and ``exists``
+    (a run directory is there already: it is kept as it is).
+
+    A protocol directory that holds another plan is refused; every archived run is
+    checked before any is copied (a damaged archive restores nothing), and each run
+    directory appears whole or not at all (copied beside, then renamed)."""
+    archive = Path(archive_dir)
+    out = Path(protocol_dir)
+    try:
+        archived_plan = json.loads((archive / PLAN_FILE).read_text())
+    except FileNotFoundError:
+        raise PvedError(f"{archive} is not a protocol archive (no {PLAN_FILE})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise PvedError(f"{archive / PLAN_FILE} is not readable ({err})") from None
+    ProtocolPlan.load(archive)  # a plan this version can read
+    archived = sorted(f.parent for f in (archive / RUNS).glob("**/result.json"))
+    for src in archived:  # all checked first: a bad archive restores nothing
+        _check_archived_run(src)
+    if (out / PLAN_FILE).exists():
+        here = json.loads((out / PLAN_FILE).read_text())
+        keys = ("pairs", "methods", "budget", "transfer_steps", "beta_grids")
+        if {k: here.get(k) for k in keys} != {k: archived_plan.get(k) for k in keys}:
+            raise PvedError(f"{out} holds another protocol than the archive {archive}")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out / PLAN_FILE, (archive / PLAN_FILE).read_bytes())
+    counts = {"restored": 0, "exists": 0}
+    runs = out / RUNS
+    runs.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".restore-", dir=runs))
+    try:
+        for src in archived:
+            rel = src.relative_to(archive / RUNS)
+            dest = runs / rel
+            if dest.exists():
+                counts["exists"] += 1
+                continue
+            copy = staging / rel
+            shutil.copytree(src, copy)
+            _repoint_result(copy, dest)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            copy.rename(dest)
+            counts["restored"] += 1
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return counts

@@ -1,0 +1,141 @@
+"""`pved archive`: a protocol's finished runs saved small enough to commit, and restored
+on another machine as done.
+
+One Reacher smoke protocol (pved, ppo) gets its pairs, bank, seed-0 model and two
+transfer runs (one PVED tuning run, one PPO run) made by the plan's own jobs; the
+archive must keep what later stages and the summaries read and nothing bulky, and a
+protocol restored from it must take those runs as done."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from pved import __version__
+from pved.cli import main
+from pved.errors import PvedError
+from pved.experiments.archive import restore_archive, save_archive
+from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.stages import transfer, transfer_spec
+from pved.runs import Run, atomic_write_json
+
+
+def _cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("proto")
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", out)
+    atomic_write_json(out / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    jobs = {j.key: j for j in plan.expand({})}
+    for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
+        jobs[key].fn(**jobs[key].kwargs)
+    jobs = {j.key: j for j in plan.expand(_finished_results(plan))}
+    tuning = next(k for k in jobs if "/transfer/pved-beta" in k)
+    baseline = next(k for k in jobs if "/transfer/ppo/" in k)
+    for key in (tuning, baseline):
+        jobs[key].fn(**jobs[key].kwargs)
+    return out
+
+
+def _transfer_kwargs(out: Path) -> dict[str, dict[str, object]]:
+    plan = ProtocolPlan.load(out)
+    return {
+        j.key: {k: v for k, v in j.kwargs.items() if k != "progress"}
+        for j in plan.expand(_finished_results(plan))
+        if j.fn is transfer
+    }
+
+
+@pytest.mark.slow
+def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    archive = tmp_path / "archive"
+    code, out, err = _cli(capsys, "archive", "save", "--protocol", protocol, "--archive", archive)
+    assert code == 0, err
+    assert out.strip().endswith("3 written, 0 unchanged")  # model, tuning run, PPO run
+    files = {str(p.relative_to(archive)) for p in archive.rglob("*") if p.is_file()}
+    assert PLAN_FILE in files
+    assert "runs/reacher/model/pved/seed0/model.pt" in files
+    # nothing bulky or half-made: no dataset, bank, checkpoint or TensorBoard file
+    assert not any(
+        f.endswith((".npz", ".tfevents")) or "checkpoints" in f or "tfevents" in f for f in files
+    )
+    pved_runs = [f for f in files if "/transfer/pved-beta" in f]
+    ppo_runs = [f for f in files if "/transfer/ppo/" in f]
+    assert any(f.endswith("/policy.pt") for f in pved_runs)  # the subspaces report reads it
+    assert not any(f.endswith("/policy.pt") for f in ppo_runs)
+    # the curves are kept whole, the PPO loss rows are not
+    source_runs = protocol / "runs"
+    for rel in (f for f in files if "/transfer/" in f and f.endswith("metrics.jsonl")):
+        kept = (archive / rel).read_text().splitlines()
+        made = (source_runs / Path(rel).relative_to("runs")).read_text().splitlines()
+        assert kept == [line for line in made if '"eval/' in line] and len(kept) < len(made)
+
+    # saving again changes nothing
+    before = {p: p.stat().st_mtime_ns for p in archive.rglob("*") if p.is_file()}
+    assert save_archive(protocol, archive) == {"written": 0, "unchanged": 3}
+    assert before == {p: p.stat().st_mtime_ns for p in archive.rglob("*") if p.is_file()}
+
+    # another machine: restored, the three runs are finished; the pairs and bank are not
+    elsewhere = tmp_path / "elsewhere"
+    code, out, err = _cli(capsys, "archive", "restore", "--archive", archive,
+                          "--protocol", elsewhere)  # fmt: skip
+    assert code == 0, err
+    assert out.strip().endswith("3 restored, 0 exists")
+    original = _finished_results(ProtocolPlan.load(protocol))
+    restored = _finished_results(ProtocolPlan.load(elsewhere))
+    assert set(restored) == set(original) - {"reacher/pairs", "reacher/bank/src0"}
+    plan = ProtocolPlan.load(elsewhere)
+    jobs = {j.key: j for j in plan.expand(restored)}
+    # the protocol there rebuilds the bank, bit for bit, so the restored runs stay done
+    jobs["reacher/bank/src0"].fn(**jobs["reacher/bank/src0"].kwargs)
+    for key, kwargs in _transfer_kwargs(elsewhere).items():
+        if key not in restored:
+            continue
+        spec = transfer_spec(**kwargs)
+        assert Run(spec.run_dir, spec.config).is_done(), key
+        result = json.loads((spec.run_dir / "result.json").read_text())
+        if "/transfer/pved-beta" in key:
+            assert Path(result["policy"]) == spec.run_dir / "policy.pt"
+        else:  # its policy stayed behind: no path to another machine's disk
+            assert "policy" not in result
+    # restoring again keeps what is there
+    assert restore_archive(archive, elsewhere) == {"restored": 0, "exists": 3}
+
+
+@pytest.mark.slow
+def test_archive_bad_input_is_one_line(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    archive = tmp_path / "archive"
+    save_archive(protocol, archive)
+    # not an archive
+    code, _, err = _cli(capsys, "archive", "restore", "--archive", tmp_path,
+                        "--protocol", tmp_path / "p")  # fmt: skip
+    assert code == 2 and "not a protocol archive" in err and err.count("\n") == 1
+    # a protocol directory of another plan
+    other = tmp_path / "other"
+    plan = ProtocolPlan(["reacher"], ["ppo"], "smoke", other)
+    atomic_write_json(other / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    code, _, err = _cli(capsys, "archive", "restore", "--archive", archive, "--protocol", other)
+    assert code == 2 and "another protocol" in err and err.count("\n") == 1
+    # an archived run whose result is not its config's, and one without its model
+    model_dir = archive / "runs/reacher/model/pved/seed0"
+    result = json.loads((model_dir / "result.json").read_text())
+    atomic_write_json(model_dir / "result.json", {**result, "config_hash": "0" * 16})
+    with pytest.raises(PvedError, match="disagree"):
+        restore_archive(archive, tmp_path / "p2")
+    atomic_write_json(model_dir / "result.json", result)
+    (model_dir / "model.pt").unlink()
+    with pytest.raises(PvedError, match=r"lacks its model\.pt"):
+        restore_archive(archive, tmp_path / "p3")
+    # checked before anything is copied: a bad archive restores nothing
+    assert not (tmp_path / "p2").exists() and not (tmp_path / "p3").exists()
