@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from helpers import reacher_smoke_protocol, run_cli
 from pved import __version__
-from pved.cli import main
 from pved.errors import PvedError
 from pved.experiments.archive import restore_archive, save_archive
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
@@ -22,20 +22,10 @@ from pved.experiments.stages import transfer, transfer_spec
 from pved.runs import Run, atomic_write_json
 
 
-def _cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 @pytest.fixture(scope="module")
 def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("proto")
-    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", out)
-    atomic_write_json(out / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
-    jobs = {j.key: j for j in plan.expand({})}
-    for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
-        jobs[key].fn(**jobs[key].kwargs)
+    out = reacher_smoke_protocol(tmp_path_factory.mktemp("proto"))
+    plan = ProtocolPlan.load(out)
     jobs = {j.key: j for j in plan.expand(_finished_results(plan))}
     tuning = next(k for k in jobs if "/transfer/pved-beta" in k)
     baseline = next(k for k in jobs if "/transfer/ppo/" in k)
@@ -58,7 +48,8 @@ def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
     protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     archive = tmp_path / "archive"
-    code, out, err = _cli(capsys, "archive", "save", "--protocol", protocol, "--archive", archive)
+    code, out, err = run_cli(capsys, "archive", "save", "--protocol", protocol,
+                             "--archive", archive)  # fmt: skip
     assert code == 0, err
     assert out.strip().endswith("3 written, 0 unchanged")  # model, tuning run, PPO run
     files = {str(p.relative_to(archive)) for p in archive.rglob("*") if p.is_file()}
@@ -86,7 +77,7 @@ def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
 
     # another machine: restored, the three runs are finished; the pairs and bank are not
     elsewhere = tmp_path / "elsewhere"
-    code, out, err = _cli(capsys, "archive", "restore", "--archive", archive,
+    code, out, err = run_cli(capsys, "archive", "restore", "--archive", archive,
                           "--protocol", elsewhere)  # fmt: skip
     assert code == 0, err
     assert out.strip().endswith("3 restored, 0 exists")
@@ -118,14 +109,14 @@ def test_archive_bad_input_is_one_line(
     archive = tmp_path / "archive"
     save_archive(protocol, archive)
     # not an archive
-    code, _, err = _cli(capsys, "archive", "restore", "--archive", tmp_path,
+    code, _, err = run_cli(capsys, "archive", "restore", "--archive", tmp_path,
                         "--protocol", tmp_path / "p")  # fmt: skip
     assert code == 2 and "not a protocol archive" in err and err.count("\n") == 1
     # a protocol directory of another plan
     other = tmp_path / "other"
     plan = ProtocolPlan(["reacher"], ["ppo"], "smoke", other)
     atomic_write_json(other / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
-    code, _, err = _cli(capsys, "archive", "restore", "--archive", archive, "--protocol", other)
+    code, _, err = run_cli(capsys, "archive", "restore", "--archive", archive, "--protocol", other)
     assert code == 2 and "another protocol" in err and err.count("\n") == 1
     # an archived run whose result is not its config's, and one without its model
     model_dir = archive / "runs/reacher/model/pved/seed0"

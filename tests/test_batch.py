@@ -14,18 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from pved import __version__
-from pved.cli import main
+from helpers import reacher_smoke_protocol, run_cli
 from pved.experiments.batch import BATCH_FILE, LOG_FILE, export_batch, import_batch
-from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.protocol import ProtocolPlan, _finished_results
 from pved.experiments.stages import transfer, transfer_spec
-from pved.runs import Run, atomic_write_json
-
-
-def _cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
+from pved.runs import Run
 
 
 def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
@@ -35,15 +28,7 @@ def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
 
 @pytest.fixture(scope="module")
 def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A reacher smoke protocol (pved, ppo) whose transfer runs can all start: its pairs,
-    bank and seed-0 model made by the plan's own jobs, no transfer run made."""
-    out = tmp_path_factory.mktemp("proto")
-    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", out)
-    atomic_write_json(out / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
-    jobs = {j.key: j for j in plan.expand({})}
-    for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
-        jobs[key].fn(**jobs[key].kwargs)
-    return out
+    return reacher_smoke_protocol(tmp_path_factory.mktemp("proto"))
 
 
 @pytest.mark.slow
@@ -51,7 +36,7 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     batch = tmp_path / "batch"
-    code, out, err = _cli(capsys, "batch", "export", "--protocol", protocol, "--batch", batch,
+    code, out, err = run_cli(capsys, "batch", "export", "--protocol", protocol, "--batch", batch,
                           "--limit", "3")  # fmt: skip
     assert code == 0, err
     exported = json.loads((batch / BATCH_FILE).read_text())
@@ -64,7 +49,7 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     assert str(protocol) not in (batch / BATCH_FILE).read_text()
 
     packed = tmp_path / "packed"
-    code, out, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
+    code, out, err = run_cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
                           "--pack", packed)  # fmt: skip
     assert code == 0, err
     log = json.loads((batch / LOG_FILE).read_text())
@@ -90,7 +75,7 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     moved = elsewhere / "runs" / exported["jobs"][0]["run_dir"]
     assert not (moved / "result.json").exists() and (moved / "checkpoints").is_dir()
 
-    code, out, err = _cli(capsys, "batch", "import", "--protocol", protocol, *tars)
+    code, out, err = run_cli(capsys, "batch", "import", "--protocol", protocol, *tars)
     assert code == 0, err
     assert out.startswith("3 finished, 0 partial, 0 exists")
     jobs = _jobs_by_key(protocol)
@@ -130,7 +115,7 @@ def test_a_batch_stops_at_its_deadline(
 ) -> None:
     batch = tmp_path / "batch"
     export_batch(protocol, batch, limit=2)
-    code, _, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "1",
+    code, _, err = run_cli(capsys, "batch", "run", "--batch", batch, "--workers", "1",
                           "--deadline-s", "2")  # fmt: skip
     assert code == 0, err
     log = json.loads((batch / LOG_FILE).read_text())
@@ -142,7 +127,7 @@ def test_a_batch_stops_at_its_deadline(
     outcome = import_batch(protocol, [batch])
     assert outcome["finished"] == outcome["partial"] == []
     # nothing to bring back, so nothing is packed
-    code, _, err = _cli(capsys, "batch", "pack", "--batch", batch, "--to", tmp_path / "p")
+    code, _, err = run_cli(capsys, "batch", "pack", "--batch", batch, "--to", tmp_path / "p")
     assert code == 0 and not list((tmp_path / "p").glob("*.tar.gz"))
 
 
@@ -155,7 +140,7 @@ def test_a_failed_run_is_reported_and_the_rest_go_on(
     data = json.loads((batch / BATCH_FILE).read_text())
     data["jobs"][0]["kwargs"]["method"] = "no-such-model"
     (batch / BATCH_FILE).write_text(json.dumps(data))
-    code, _, err = _cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
+    code, _, err = run_cli(capsys, "batch", "run", "--batch", batch, "--workers", "2",
                         "--pack", tmp_path / "p")  # fmt: skip
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert f"1 of 2 runs failed; {keys[0]}" in err and "no-such-model" in err
@@ -189,6 +174,6 @@ def test_batch_bad_input_is_one_line(
     with tarfile.open(evil, "w:gz") as tar:
         tar.add(tmp_path / "x", arcname="../outside")
     paths = {"proto": protocol, "junk": junk, "evil": evil, "tmp": tmp_path}
-    code, _, err = _cli(capsys, "batch", *(a.format(**paths) for a in argv))
+    code, _, err = run_cli(capsys, "batch", *(a.format(**paths) for a in argv))
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path.parent / "outside").exists()

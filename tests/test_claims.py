@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from helpers import run_cli
 from pved.analysis.claims import (
     FOUR,
     HOLDS,
@@ -23,7 +24,6 @@ from pved.analysis.claims import (
     write_claims,
 )
 from pved.analysis.curves import bootstrap_difference
-from pved.cli import main
 from pved.errors import PvedError
 
 STEPS = [0, 1000, 2000, 3000, 4000]  # early score: the points at steps <= 1000
@@ -313,12 +313,6 @@ def test_early_and_drop_from_metrics(tmp_path: Path) -> None:
         == NOT_HOLD
     )
     assert result["claims"][5]["verdict"] == NOT_HOLD
-
-
-def run_cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_cli_writes_claims_and_rejects_bad_dirs(

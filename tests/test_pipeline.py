@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import run_cli
 from pved.cli import main
 from pved.models import MODELS, load_model
 from pved.pairing.dataset import load_dataset, save_dataset
@@ -19,12 +20,6 @@ from pved.pretrained import pretrained_policy_path
 
 TINY_TRANSFER = ["--steps", "4096", "--eval-every", "2048", "--eval-episodes", "16",
                  "--final-eval-episodes", "16"]  # fmt: skip
-
-
-def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
