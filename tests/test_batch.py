@@ -15,10 +15,12 @@ from pathlib import Path
 import pytest
 
 from helpers import reacher_smoke_protocol, run_cli
+from pved import __version__
+from pved.errors import PvedError
 from pved.experiments.batch import BATCH_FILE, LOG_FILE, export_batch, import_batch
-from pved.experiments.protocol import ProtocolPlan, _finished_results
+from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import transfer, transfer_spec
-from pved.runs import Run
+from pved.runs import Run, atomic_write_json
 
 
 def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
@@ -177,3 +179,26 @@ def test_batch_bad_input_is_one_line(
     code, _, err = run_cli(capsys, "batch", *(a.format(**paths) for a in argv))
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path.parent / "outside").exists()
+
+
+@pytest.mark.slow
+def test_one_batch_serves_several_protocols(protocol: Path, tmp_path: Path) -> None:
+    # a second pair whose PPO runs can start at once (no model, no bank)
+    walker = tmp_path / "walker"
+    plan = ProtocolPlan(["walker-hopper"], ["ppo"], "smoke", walker)
+    atomic_write_json(walker / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    keys = export_batch([protocol, walker], tmp_path / "both", limit=2)
+    # two of each, alternating, each protocol's in its own order
+    assert [k.split("/")[0] for k in keys] == ["reacher", "walker-hopper"] * 2
+    assert keys[0::2] == export_batch(protocol, tmp_path / "reacher-only", limit=2)
+    assert keys[1::2] == export_batch(walker, tmp_path / "walker-only", limit=2)
+    exported = json.loads((tmp_path / "both" / BATCH_FILE).read_text())
+    assert len(exported["protocols"]) == 2
+    assert (tmp_path / "both/runs/reacher/model/pved/seed0/model.pt").exists()
+    # two protocols of one pair would share run names: refused, nothing written
+    again = tmp_path / "again"
+    plan = ProtocolPlan(["walker-hopper"], ["ppo"], "smoke", again)
+    atomic_write_json(again / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    with pytest.raises(PvedError, match="same name"):
+        export_batch([walker, again], tmp_path / "clash")
+    assert not (tmp_path / "clash").exists()

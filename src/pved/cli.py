@@ -506,9 +506,15 @@ def build_parser() -> argparse.ArgumentParser:
     a = actions.add_parser(
         "export", help="the runs that can start now, with their models and banks"
     )
-    a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
+    a.add_argument(
+        "--protocol",
+        type=Path,
+        nargs="+",
+        required=True,
+        help="the protocol directory; several (of different pairs) share one batch",
+    )
     a.add_argument("--batch", type=Path, required=True, help="a new batch directory")
-    a.add_argument("--limit", type=int, help="at most this many runs")
+    a.add_argument("--limit", type=int, help="at most this many runs (of each protocol)")
     a.add_argument(
         "--skip",
         type=int,

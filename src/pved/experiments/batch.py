@@ -24,6 +24,7 @@ protocol's own; library versions on the other machine may change their last digi
 
 from __future__ import annotations
 
+import itertools
 import json
 import multiprocessing
 import os
@@ -97,7 +98,7 @@ def _read_batch(batch_dir: Path) -> tuple[dict[str, Any], list[BatchJob]]:
 
 
 def export_batch(
-    protocol_dir: Path | str,
+    protocol_dir: Path | str | Sequence[Path | str],
     batch_dir: Path | str,
     *,
     limit: int | None = None,
@@ -109,8 +110,15 @@ def export_batch(
 
     ``skip``: leave the first ``skip`` of them out, for a protocol that keeps running
     here meanwhile (those are the runs it reaches next). ``batch_dir`` must not exist: a
-    batch is written once, then run and imported."""
-    plan = ProtocolPlan.load(Path(protocol_dir))
+    batch is written once, then run and imported.
+
+    Several protocol directories (of different pairs) make one batch, so that one pool
+    of workers serves them all: ``limit`` and ``skip`` apply to each protocol, and their
+    runs alternate, each protocol's in its own order. Each protocol then imports its own
+    runs from the batch's tar files (the others' are ``unknown`` to it)."""
+    dirs = [protocol_dir] if isinstance(protocol_dir, (str, Path)) else list(protocol_dir)
+    if not dirs:
+        raise PvedError("export needs at least one protocol directory")
     batch = Path(batch_dir)
     if batch.exists():
         raise PvedError(f"{batch} exists; a batch goes into a new directory")
@@ -118,46 +126,65 @@ def export_batch(
         raise PvedError(f"--limit must be at least 1, not {limit}")
     if skip < 0:
         raise PvedError(f"--skip must be at least 0, not {skip}")
-    results = _finished_results(plan)
-    ready = [
-        job
-        for job in plan.expand(results)
-        if job.fn is transfer
-        and job.key not in results
-        and job.run_dir is not None
-        and not job.run_dir.exists()
-        and all(dep in results for dep in job.deps)
-    ]
-    ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
-    ready = ready[skip:][:limit]
-    jobs: list[dict[str, Any]] = []
+    per_protocol: list[list[dict[str, Any]]] = []
     inputs: dict[str, str] = {}
-    for job in ready:
-        assert job.run_dir is not None
-        kwargs = {k: v for k, v in job.kwargs.items() if k not in ("runs_root", "progress")}
-        for name in PATH_ARGS:
-            if name in kwargs:
-                rel = _relative(Path(kwargs[name]), plan.runs, name)
-                kwargs[name] = rel
-                inputs[rel] = file_digest(plan.runs / rel)
-        jobs.append(
-            {"key": job.key, "kwargs": kwargs, "run_dir": _relative(job.run_dir, plan.runs, "run")}
-        )
+    sources: dict[str, Path] = {}  # an input's relative path -> its file here
+    plans = [ProtocolPlan.load(Path(d)) for d in dirs]
+    for plan in plans:
+        results = _finished_results(plan)
+        ready = [
+            job
+            for job in plan.expand(results)
+            if job.fn is transfer
+            and job.key not in results
+            and job.run_dir is not None
+            and not job.run_dir.exists()
+            and all(dep in results for dep in job.deps)
+        ]
+        ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
+        jobs: list[dict[str, Any]] = []
+        for job in ready[skip:][:limit]:
+            assert job.run_dir is not None
+            kwargs = {k: v for k, v in job.kwargs.items() if k not in ("runs_root", "progress")}
+            for name in PATH_ARGS:
+                if name in kwargs:
+                    rel = _relative(Path(kwargs[name]), plan.runs, name)
+                    kwargs[name] = rel
+                    digest = file_digest(plan.runs / rel)
+                    if inputs.setdefault(rel, digest) != digest:
+                        raise PvedError(
+                            f"two protocols have different files at {rel}; "
+                            "export protocols of one pair in separate batches"
+                        )
+                    sources[rel] = plan.runs / rel
+            jobs.append(
+                {
+                    "key": job.key,
+                    "kwargs": kwargs,
+                    "run_dir": _relative(job.run_dir, plan.runs, "run"),
+                }
+            )
+        per_protocol.append(jobs)
+    # alternate the protocols' runs, each protocol's in its own order
+    jobs = [j for group in itertools.zip_longest(*per_protocol) for j in group if j is not None]
+    run_dirs = [j["run_dir"] for j in jobs]
+    if len(set(run_dirs)) != len(run_dirs):
+        raise PvedError("two protocols have runs of the same name; export them separately")
     # written beside, then renamed: a batch directory is complete or absent
     batch.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{batch.name}.", dir=batch.parent))
     try:
-        for rel in inputs:
+        for rel, source in sources.items():
             dest = staging / RUNS / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(plan.runs / rel, dest)
+            shutil.copy2(source, dest)
         atomic_write_json(
             staging / BATCH_FILE,
             {
                 "format": BATCH_FORMAT,
                 "version": BATCH_VERSION,
                 "pved_version": __version__,
-                "protocol": plan.describe(),
+                "protocols": [plan.describe() for plan in plans],
                 "inputs": inputs,
                 "jobs": jobs,
             },
