@@ -195,6 +195,12 @@ def test_one_batch_serves_several_protocols(protocol: Path, tmp_path: Path) -> N
     exported = json.loads((tmp_path / "both" / BATCH_FILE).read_text())
     assert len(exported["protocols"]) == 2
     assert (tmp_path / "both/runs/reacher/model/pved/seed0/model.pt").exists()
+    # each protocol imports its own runs and counts the other's apart, not as unknown
+    other = tmp_path / "both/runs" / exported["jobs"][1]["run_dir"]
+    other.mkdir(parents=True)
+    (other / "config.json").write_text("{}")
+    outcome = import_batch(protocol, [tmp_path / "both"])
+    assert outcome["other"] == [exported["jobs"][1]["run_dir"]] and not outcome["unknown"]
     # two protocols of one pair would share run names: refused, nothing written
     again = tmp_path / "again"
     plan = ProtocolPlan(["walker-hopper"], ["ppo"], "smoke", again)

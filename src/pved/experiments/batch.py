@@ -115,7 +115,7 @@ def export_batch(
     Several protocol directories (of different pairs) make one batch, so that one pool
     of workers serves them all: ``limit`` and ``skip`` apply to each protocol, and their
     runs alternate, each protocol's in its own order. Each protocol then imports its own
-    runs from the batch's tar files (the others' are ``unknown`` to it)."""
+    runs from the batch's tar files (it counts the others as ``other``)."""
     dirs = [protocol_dir] if isinstance(protocol_dir, (str, Path)) else list(protocol_dir)
     if not dirs:
         raise PvedError("export needs at least one protocol directory")
@@ -358,7 +358,8 @@ def import_batch(
     kept), ``unknown`` (no run of this protocol that can start now), ``mismatch`` (its
     config hash is not the one this run has here) and ``empty`` (no result, no
     checkpoint, or only a checkpoint when ``finished_only``: a batch still running
-    leaves its unfinished runs where they are)."""
+    leaves its unfinished runs where they are) and ``other`` (a run of a pair this
+    protocol does not have: another protocol's, from a batch they share)."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     results = _finished_results(plan)
     expected = {
@@ -367,7 +368,7 @@ def import_batch(
         if job.fn is transfer and job.run_dir is not None
     }
     outcome: dict[str, list[str]] = {
-        k: [] for k in ("finished", "partial", "exists", "unknown", "mismatch", "empty")
+        k: [] for k in ("finished", "partial", "exists", "unknown", "mismatch", "empty", "other")
     }
     plan.runs.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".import-", dir=plan.runs))
@@ -387,6 +388,9 @@ def import_batch(
             for config_file in sorted(root.glob("*/transfer/*/seed*/config.json")):
                 run_dir = config_file.parent
                 rel = str(run_dir.relative_to(root))
+                if Path(rel).parts[0] not in plan.pairs:
+                    outcome["other"].append(rel)  # another protocol's, in a shared batch
+                    continue
                 job = expected.get(rel)
                 if job is None:
                     outcome["unknown"].append(rel)
