@@ -57,9 +57,9 @@ def _eval_rows(metrics: bytes) -> bytes:
 
 
 def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[tuple[str, bytes]]:
-    """(name, content) of what the archive keeps of one finished run directory."""
-    for name in ("result.json", "config.json"):
-        yield name, (run_dir / name).read_bytes()
+    """(name, content) of what the archive keeps of one finished run directory,
+    ``result.json`` last: it marks an archived run as whole, so a commit taken while a
+    save is under way holds no run without its artefact."""
     metrics = run_dir / "metrics.jsonl"
     if job_fn is transfer:
         if metrics.exists():
@@ -70,6 +70,8 @@ def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[
         if metrics.exists():
             yield "metrics.jsonl", metrics.read_bytes()
         yield ARTEFACTS[job_fn], (run_dir / ARTEFACTS[job_fn]).read_bytes()
+    for name in ("config.json", "result.json"):
+        yield name, (run_dir / name).read_bytes()
 
 
 def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str, int]:
