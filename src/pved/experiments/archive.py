@@ -2,8 +2,9 @@
 
 A protocol at the ``quick`` budget takes days of one core, more than one working session
 on a machine whose disk may not outlive it. ``pved archive save`` copies what its
-finished runs established into a directory small enough to commit (under
-``docs/protocol/<pair>-<budget>/``, beside the published summary); ``pved archive
+finished runs established into a small directory kept beside the repository (run
+directories, models and policies are not committed; ``make archive`` uses
+``archive/<pair>-<budget>/``); ``pved archive
 restore`` puts it back into a protocol directory, where ``pved protocol`` takes those runs
 as done and goes on with the rest.
 
