@@ -545,8 +545,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="a protocol's finished runs, slimmed to commit, and back",
         description="save: copy a protocol's finished policy, model and transfer runs "
         "(results, configs, evaluation curves, models; no checkpoints, datasets or banks) "
-        "into a small directory to keep beside the repository; restore: put them back into a protocol "
-        "directory, where `pved protocol` takes them as done and runs the rest.",
+        "into a small directory to keep beside the repository; restore: put them back "
+        "into a protocol directory, where `pved protocol` takes them as done and runs the rest.",
     )
     actions = p.add_subparsers(dest="action", required=True)
     for action, help_text in (
