@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -80,3 +82,29 @@ def test_atomic_writes_are_readable_by_others(tmp_path: Path) -> None:
         os.umask(old)
     for name in ("a.json", "b.pt"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644
+
+
+def test_file_digest_names_a_pytorch_files_state_not_its_bytes(tmp_path: Path) -> None:
+    from pved.experiments.stages import file_digest
+    from pved.runs import atomic_torch_save
+
+    name = "pved"
+    state = {"weights": torch.arange(6.0).reshape(2, 3), "name": name, "meta": {"model": name}}
+    atomic_torch_save(tmp_path / "a.pt", state)
+    # the same state saved again, its equal strings now distinct objects (pickled unlike)
+    atomic_torch_save(tmp_path / "b.pt", {**state, "meta": {"model": "".join(["pv", "ed"])}})
+    a, b = (tmp_path / "a.pt").read_bytes(), (tmp_path / "b.pt").read_bytes()
+    assert a != b  # torch.save's random id, temporary names, pickle memo
+    assert file_digest(tmp_path / "a.pt") == file_digest(tmp_path / "b.pt")
+    for changed in (
+        {**state, "weights": state["weights"] + 1e-6},
+        {**state, "weights": state["weights"].reshape(3, 2)},
+        {**state, "weights": state["weights"].double()},
+        {**state, "meta": {"model": "pved-vae"}},
+    ):
+        atomic_torch_save(tmp_path / "c.pt", changed)
+        assert file_digest(tmp_path / "c.pt") != file_digest(tmp_path / "a.pt")
+    # anything else, a numpy archive included, by its bytes
+    np.savez(tmp_path / "d.npz", x=np.ones(3))
+    expected = hashlib.sha256((tmp_path / "d.npz").read_bytes()).hexdigest()[:16]
+    assert file_digest(tmp_path / "d.npz") == expected

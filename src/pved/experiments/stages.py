@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import warnings
 from collections.abc import Callable
@@ -65,9 +66,50 @@ ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
 REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
 
 
+def _hash_state(digest: Any, obj: Any) -> None:
+    """Feed a loaded PyTorch state into ``digest`` by value: tensors by dtype, shape and
+    bytes; dicts in key order; each part length-prefixed, so no two states collide by
+    concatenation."""
+
+    def part(tag: bytes, payload: bytes) -> None:
+        digest.update(tag + len(payload).to_bytes(8, "little") + payload)
+
+    if isinstance(obj, torch.Tensor):
+        flat = obj.detach().cpu().contiguous().reshape(-1)
+        part(b"T", f"{flat.dtype}{tuple(obj.shape)}".encode())
+        part(b"B", flat.view(torch.uint8).numpy().tobytes())
+    elif isinstance(obj, dict):
+        part(b"D", str(len(obj)).encode())
+        for key in sorted(obj, key=repr):
+            _hash_state(digest, key)
+            _hash_state(digest, obj[key])
+    elif isinstance(obj, (list, tuple)):
+        part(b"L" if isinstance(obj, list) else b"U", str(len(obj)).encode())
+        for item in obj:
+            _hash_state(digest, item)
+    else:  # str, int, float, bool, None: what a pved state holds besides tensors
+        part(type(obj).__name__.encode(), repr(obj).encode())
+
+
 def file_digest(path: Path) -> str:
-    """Short content hash of an input file, so a changed input invalidates a done stage."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    """Short content hash of an input file, so a changed input invalidates a done stage.
+
+    A PyTorch file (policy, model) is hashed by the state it holds, not by its bytes:
+    ``torch.save`` writes a fresh random serialization id and the temporary file's name
+    into every file, and pickles equal strings differently by object identity, so two
+    saves of one state differ byte for byte. A model retrained bit for bit then keeps
+    the digest its transfer runs were made under."""
+    data = Path(path).read_bytes()
+    if data[:4] == b"PK\x03\x04":  # a zip archive: a PyTorch file, or a numpy .npz
+        try:
+            state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        except Exception:  # torch raises many types: not a PyTorch file
+            state = None
+        if state is not None:
+            digest = hashlib.sha256(b"pved-torch-state")
+            _hash_state(digest, state)
+            return digest.hexdigest()[:16]
+    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
@@ -408,7 +450,8 @@ def train_model(
         {
             "pair": pair,
             "model": model,
-            "dataset": str(data_path),
+            # its digest, not its path: a model names no place on the machine it was made on
+            "dataset": file_digest(data_path),
             "source_agent": preset.source_agent,
             "target_agent": preset.target_agent,
             "seed": seed,
