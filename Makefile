@@ -28,13 +28,19 @@ reproduce: $(STAMP)
 
 # A protocol outlives the machine it runs on: `make archive` copies its finished runs,
 # slimmed (results, configs, curves, models; no checkpoints, datasets or banks), into
-# archive/<pair>-<budget>/ (kept beside the repository, not committed); `make restore` puts them back into
-# reports/<pair>-<budget>/, and `make reproduce` then goes on with the rest.
+# archive/<pair>-<budget>/ (kept beside the repository, not committed), and writes the
+# committed record, docs/protocol/<pair>-<budget>/finished-transfer-runs.json (each finished
+# transfer run's result, config and curve); `make restore` puts back into
+# reports/<pair>-<budget>/ what either holds, and `make reproduce` then goes on with the rest.
 archive: $(STAMP)
 	$(VENV)/bin/pved archive save --protocol reports/$(PAIR)-$(BUDGET) \
 		--archive archive/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved archive summary --protocol reports/$(PAIR)-$(BUDGET) \
+		--archive docs/protocol/$(PAIR)-$(BUDGET)
 restore: $(STAMP)
-	$(VENV)/bin/pved archive restore --archive archive/$(PAIR)-$(BUDGET) \
+	$(if $(wildcard archive/$(PAIR)-$(BUDGET)),$(VENV)/bin/pved archive restore \
+		--archive archive/$(PAIR)-$(BUDGET) --protocol reports/$(PAIR)-$(BUDGET))
+	$(VENV)/bin/pved archive restore --archive docs/protocol/$(PAIR)-$(BUDGET) \
 		--protocol reports/$(PAIR)-$(BUDGET)
 
 # "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of

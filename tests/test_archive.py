@@ -9,22 +9,23 @@ protocol restored from it must take those runs as done."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
 from helpers import reacher_smoke_protocol, run_cli
 from pved import __version__
+from pved.analysis.curves import read_eval_points
 from pved.errors import PvedError
-from pved.experiments.archive import restore_archive, save_archive
+from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import transfer, transfer_spec
 from pved.runs import Run, atomic_write_json
 
 
-@pytest.fixture(scope="module")
-def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = reacher_smoke_protocol(tmp_path_factory.mktemp("proto"))
+def _protocol_with_two_runs(out: Path) -> Path:
+    out = reacher_smoke_protocol(out)
     plan = ProtocolPlan.load(out)
     jobs = {j.key: j for j in plan.expand(_finished_results(plan))}
     tuning = next(k for k in jobs if "/transfer/pved-beta" in k)
@@ -32,6 +33,11 @@ def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for key in (tuning, baseline):
         jobs[key].fn(**jobs[key].kwargs)
     return out
+
+
+@pytest.fixture(scope="module")
+def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _protocol_with_two_runs(tmp_path_factory.mktemp("proto"))
 
 
 def _transfer_kwargs(out: Path) -> dict[str, dict[str, object]]:
@@ -103,6 +109,58 @@ def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
 
 
 @pytest.mark.slow
+def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a machine that lost the protocol directory but kept the repository's summary (made
+    # here, not copied: a model names its dataset's path, part of the runs' config hashes)
+    lost = _protocol_with_two_runs(tmp_path / "lost")
+    made_runs = tmp_path / "made-runs"
+    shutil.copytree(lost / "runs", made_runs)
+    summary = tmp_path / "summary"
+    code, out, err = run_cli(capsys, "archive", "summary", "--protocol", lost,
+                          "--archive", summary)  # fmt: skip
+    assert code == 0, err
+    assert out.strip().endswith("2 runs, 1 written")  # the tuning run and the PPO run
+    text = (summary / SUMMARY_FILE).read_text()
+    assert save_summary(lost, summary) == {"runs": 2, "written": 0}
+    assert (summary / SUMMARY_FILE).read_text() == text
+    runs = json.loads(text)
+    assert list(runs) == sorted(runs) and all("/transfer/" in rel for rel in runs)
+    shutil.rmtree(lost)
+
+    code, out, err = run_cli(capsys, "archive", "restore", "--archive", summary,
+                          "--protocol", lost)  # fmt: skip
+    assert code == 0, err
+    assert out.strip().endswith("2 restored, 0 exists")
+    original = _finished_results(ProtocolPlan.load(protocol))
+    restored = _finished_results(ProtocolPlan.load(lost))
+    assert set(restored) == {key for key in original if "/transfer/" in key}
+    for rel in runs:  # the learning curves read back as they were made
+        made = read_eval_points(made_runs / rel / "metrics.jsonl", "eval/return_mean")
+        back = read_eval_points(lost / "runs" / rel / "metrics.jsonl", "eval/return_mean")
+        assert [list(a) for a in made] == [list(b) for b in back] and len(made[0]) > 1
+    # the plan there remakes its pairs, bank and model bit for bit: the runs stay done
+    plan = ProtocolPlan.load(lost)
+    jobs = {j.key: j for j in plan.expand(restored)}
+    for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
+        jobs[key].fn(**jobs[key].kwargs)
+    for key, kwargs in _transfer_kwargs(lost).items():
+        if key in restored:
+            spec = transfer_spec(**kwargs)
+            assert Run(spec.run_dir, spec.config).is_done(), key
+            assert "policy" not in json.loads((spec.run_dir / "result.json").read_text())
+
+    # an archive and its summary together: the archived run, with its policy, wins
+    both = tmp_path / "both"
+    save_archive(protocol, both)
+    save_summary(protocol, both)
+    assert restore_archive(both, tmp_path / "p") == {"restored": 3, "exists": 0}
+    tuning = next(rel for rel in runs if "/transfer/pved-beta" in rel)
+    assert (tmp_path / "p/runs" / tuning / "policy.pt").is_file()
+
+
+@pytest.mark.slow
 def test_archive_bad_input_is_one_line(
     protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -130,3 +188,24 @@ def test_archive_bad_input_is_one_line(
         restore_archive(archive, tmp_path / "p3")
     # checked before anything is copied: a bad archive restores nothing
     assert not (tmp_path / "p2").exists() and not (tmp_path / "p3").exists()
+
+    # a summary whose run is not a transfer run's, is of another pair, or has lost its
+    # config; a summary that is not JSON
+    summary = tmp_path / "summary"
+    save_summary(protocol, summary)
+    runs = json.loads((summary / SUMMARY_FILE).read_text())
+    rel, entry = next(iter(runs.items()))
+    for bad, message in (
+        ({"../../outside": entry}, "not a transfer run's path"),
+        ({rel.replace("reacher/", "walker-hopper/"): entry}, "is not of this plan"),
+        ({rel: {**entry, "config": None}}, "lacks its result, config or curve"),
+        ({rel: {**entry, "result": {**entry["result"], "config_hash": "0"}}}, "disagree"),
+    ):
+        atomic_write_json(summary / SUMMARY_FILE, bad)
+        code, _, err = run_cli(capsys, "archive", "restore", "--archive", summary,
+                            "--protocol", tmp_path / "p4")  # fmt: skip
+        assert code == 2 and message in err and err.count("\n") == 1, err
+    (summary / SUMMARY_FILE).write_text("{not json")
+    with pytest.raises(PvedError, match="is not readable"):
+        restore_archive(summary, tmp_path / "p4")
+    assert not (tmp_path / "p4").exists()

@@ -225,6 +225,8 @@ def _cmd_archive(args: argparse.Namespace) -> None:
 
     if args.action == "save":
         counts = archive.save_archive(args.protocol, args.archive)
+    elif args.action == "summary":
+        counts = archive.save_summary(args.protocol, args.archive)
     else:
         counts = archive.restore_archive(args.archive, args.protocol)
     print(f"{args.archive}: " + ", ".join(f"{n} {what}" for what, n in counts.items()))
@@ -545,13 +547,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="a protocol's finished runs, slimmed to commit, and back",
         description="save: copy a protocol's finished policy, model and transfer runs "
         "(results, configs, evaluation curves, models; no checkpoints, datasets or banks) "
-        "into a small directory to keep beside the repository; restore: put them back "
-        "into a protocol directory, where `pved protocol` takes them as done and runs the rest.",
+        "into a small directory to keep beside the repository; summary: write the finished "
+        "transfer runs' results, configs and curves as one file to commit; restore: put "
+        "either back into a protocol directory, where `pved protocol` takes them as done "
+        "and runs the rest.",
     )
     actions = p.add_subparsers(dest="action", required=True)
     for action, help_text in (
         ("save", "the protocol's finished runs into the archive"),
-        ("restore", "the archive's runs into the protocol directory"),
+        ("summary", "the protocol's finished transfer runs into one summary file there"),
+        ("restore", "the archive's (or summary's) runs into the protocol directory"),
     ):
         a = actions.add_parser(action, help=help_text)
         a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")

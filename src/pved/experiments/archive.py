@@ -22,11 +22,19 @@ What is kept, per finished run (a run directory with ``result.json``):
 Left out: checkpoints and TensorBoard files, unfinished runs, and the pairing datasets and
 source banks (tens to hundreds of MB a pair): the protocol rebuilds those from the shipped
 policies when a restored plan needs them.
+
+What is committed is smaller still: ``pved archive summary`` writes the protocol's
+``protocol.json`` and one file, ``finished-transfer-runs.json``, that maps each finished
+transfer run (by its path under ``runs/``) to its ``result``, ``config`` and evaluation
+``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``). ``restore``
+reads either kind of directory; from a summary the runs come back without their
+policies, and the protocol retrains the models the runs still to come need.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -43,6 +51,10 @@ RUNS = "runs"
 ARTEFACTS = {train_policy: "policy.pt", train_model: "model.pt"}
 #: transfer runs of this method keep their policy (the subspaces report reads it)
 POLICY_KEPT_FOR = "pved"
+#: the committed record of a protocol's finished transfer runs (module docstring)
+SUMMARY_FILE = "finished-transfer-runs.json"
+#: where a transfer run lives under ``runs/``: ``<pair>/transfer/<run name>/seed<seed>``
+TRANSFER_REL = re.compile(r"[A-Za-z0-9_-]+/transfer/[A-Za-z0-9_.+-]+/seed[0-9]+")
 
 
 def _eval_rows(metrics: bytes) -> bytes:
@@ -111,6 +123,71 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
     return counts
 
 
+def _write_if_changed(path: Path, content: bytes) -> bool:
+    """Write ``content`` to ``path`` atomically unless it holds it already; True if written."""
+    if path.exists() and path.read_bytes() == content:
+        return False
+    atomic_write_bytes(path, content)
+    return True
+
+
+def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str, int]:
+    """Write the protocol's ``protocol.json`` and ``finished-transfer-runs.json`` (module
+    docstring) into ``summary_dir``; returns counts: ``runs`` summarised and ``written``
+    (1 when the summary changed, 0 when it already held them all).
+
+    Keys are sorted and the file indented, so that a commit of a later summary shows the
+    runs that finished since as added lines."""
+    plan = ProtocolPlan.load(Path(protocol_dir))
+    results = _finished_results(plan)
+    runs: dict[str, Any] = {}
+    for job in plan.expand(results):
+        if job.fn is not transfer or job.key not in results or job.run_dir is None:
+            continue
+        try:
+            config = json.loads((job.run_dir / "config.json").read_text())
+            metrics = job.run_dir / "metrics.jsonl"
+            rows = _eval_rows(metrics.read_bytes()).decode() if metrics.exists() else ""
+            curve = [json.loads(line) for line in rows.splitlines()]
+        except (OSError, ValueError, UnicodeDecodeError) as err:
+            raise PvedError(f"finished run {job.key} cannot be summarised: {err}") from None
+        rel = str(job.run_dir.relative_to(plan.runs))
+        runs[rel] = {"result": results[job.key], "config": config, "curve": curve}
+    out = Path(summary_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
+    text = json.dumps(dict(sorted(runs.items())), indent=1, sort_keys=True) + "\n"
+    written = _write_if_changed(out / SUMMARY_FILE, text.encode())
+    return {"runs": len(runs), "written": int(written)}
+
+
+def _summarised_runs(summary_file: Path) -> dict[str, dict[str, Any]]:
+    """The summary's runs, each checked: a run path of the expected shape, a result
+    under the hash of its config, and a curve of evaluation rows."""
+    try:
+        runs = json.loads(summary_file.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise PvedError(f"{summary_file} is not readable ({err})") from None
+    if not isinstance(runs, dict):
+        raise PvedError(f"{summary_file} is not a pved run summary")
+    for rel, entry in runs.items():
+        where = f"{summary_file}: run {rel}"
+        if not TRANSFER_REL.fullmatch(rel):
+            raise PvedError(f"{where} is not a transfer run's path")
+        if not isinstance(entry, dict) or not all(
+            isinstance(entry.get(k), t)
+            for k, t in (("result", dict), ("config", dict), ("curve", list))
+        ):
+            raise PvedError(f"{where} lacks its result, config or curve")
+        if entry["result"].get("config_hash") != entry["config"].get("config_hash"):
+            raise PvedError(f"{where}: its result and config disagree")
+        if not all(
+            isinstance(row, dict) and isinstance(row.get("step"), int) for row in entry["curve"]
+        ):
+            raise PvedError(f"{where} has a curve row without its step")
+    return runs
+
+
 def _check_archived_run(run_dir: Path) -> None:
     """An archived run must be whole: its result under the hash of its config, and the
     artefact its stage's later runs read."""
@@ -146,14 +223,29 @@ def _repoint_result(run_dir: Path, final_dir: Path) -> None:
     atomic_write_json(path, result)
 
 
-def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[str, int]:
-    """Put an archive's runs into the protocol directory ``protocol_dir`` (created with the
-    archive's ``protocol.json`` when new); returns counts: ``restored`` and ``exists``
-    (a run directory is there already: it is kept as it is).
+def _staged_summary_run(entry: dict[str, Any], staged: Path) -> None:
+    """A summarised run's directory as the run left it, less what the summary does not
+    keep (its policy, the PPO loss rows): ``config.json``, the curve as ``metrics.jsonl``,
+    and ``result.json`` without the path to a policy that is not there."""
+    staged.mkdir(parents=True)
+    atomic_write_json(staged / "config.json", entry["config"])
+    lines = "".join(json.dumps(row) + "\n" for row in entry["curve"])
+    atomic_write_bytes(staged / "metrics.jsonl", lines.encode())
+    atomic_write_json(
+        staged / "result.json",
+        {k: v for k, v in entry["result"].items() if k not in ("policy", "model")},
+    )
 
-    A protocol directory that holds another plan is refused; every archived run is
-    checked before any is copied (a damaged archive restores nothing), and each run
-    directory appears whole or not at all (copied beside, then renamed)."""
+
+def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[str, int]:
+    """Put the runs of an archive, or of a summary directory (module docstring), into the
+    protocol directory ``protocol_dir`` (created with their ``protocol.json`` when new);
+    returns counts: ``restored`` and ``exists`` (a run directory is there already: it is
+    kept as it is). A run both archived and summarised comes from the archive.
+
+    A protocol directory that holds another plan is refused; every run is checked before
+    any is copied (a damaged archive or summary restores nothing), and each run
+    directory appears whole or not at all (made beside, then renamed)."""
     archive = Path(archive_dir)
     out = Path(protocol_dir)
     try:
@@ -162,10 +254,16 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
         raise PvedError(f"{archive} is not a protocol archive (no {PLAN_FILE})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise PvedError(f"{archive / PLAN_FILE} is not readable ({err})") from None
-    ProtocolPlan.load(archive)  # a plan this version can read
+    plan = ProtocolPlan.load(archive)  # a plan this version can read
     archived = sorted(f.parent for f in (archive / RUNS).glob("**/result.json"))
     for src in archived:  # all checked first: a bad archive restores nothing
         _check_archived_run(src)
+    summarised = {}
+    if (archive / SUMMARY_FILE).exists():
+        summarised = _summarised_runs(archive / SUMMARY_FILE)
+        foreign = [rel for rel in summarised if rel.split("/")[0] not in plan.pairs]
+        if foreign:
+            raise PvedError(f"{archive / SUMMARY_FILE}: run {foreign[0]} is not of this plan")
     if (out / PLAN_FILE).exists():
         here = json.loads((out / PLAN_FILE).read_text())
         keys = ("pairs", "methods", "budget", "transfer_steps", "beta_grids")
@@ -178,16 +276,20 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
     runs = out / RUNS
     runs.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".restore-", dir=runs))
+    sources: dict[str, Path | dict[str, Any]] = dict(summarised)
+    sources.update({str(src.relative_to(archive / RUNS)): src for src in archived})
     try:
-        for src in archived:
-            rel = src.relative_to(archive / RUNS)
+        for rel, source in sorted(sources.items()):
             dest = runs / rel
             if dest.exists():
                 counts["exists"] += 1
                 continue
             copy = staging / rel
-            shutil.copytree(src, copy)
-            _repoint_result(copy, dest)
+            if isinstance(source, Path):
+                shutil.copytree(source, copy)
+                _repoint_result(copy, dest)
+            else:
+                _staged_summary_run(source, copy)
             dest.parent.mkdir(parents=True, exist_ok=True)
             copy.rename(dest)
             counts["restored"] += 1
