@@ -49,6 +49,18 @@ def _transfer_kwargs(out: Path) -> dict[str, dict[str, object]]:
     }
 
 
+def _restore_by_cli(
+    capsys: pytest.CaptureFixture[str], source: Path, protocol: Path, counts: str
+) -> dict[str, object]:
+    """`pved archive restore` from ``source`` into ``protocol``, which must print
+    ``counts``; the finished results the protocol then reads."""
+    code, out, err = run_cli(capsys, "archive", "restore", "--archive", source,
+                          "--protocol", protocol)  # fmt: skip
+    assert code == 0, err
+    assert out.strip().endswith(counts)
+    return _finished_results(ProtocolPlan.load(protocol))
+
+
 @pytest.mark.slow
 def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
     protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -83,12 +95,8 @@ def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
 
     # another machine: restored, the three runs are finished; the pairs and bank are not
     elsewhere = tmp_path / "elsewhere"
-    code, out, err = run_cli(capsys, "archive", "restore", "--archive", archive,
-                          "--protocol", elsewhere)  # fmt: skip
-    assert code == 0, err
-    assert out.strip().endswith("3 restored, 0 exists")
+    restored = _restore_by_cli(capsys, archive, elsewhere, "3 restored, 0 exists")
     original = _finished_results(ProtocolPlan.load(protocol))
-    restored = _finished_results(ProtocolPlan.load(elsewhere))
     assert set(restored) == set(original) - {"reacher/pairs", "reacher/bank/src0"}
     plan = ProtocolPlan.load(elsewhere)
     jobs = {j.key: j for j in plan.expand(restored)}
@@ -129,12 +137,8 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     assert list(runs) == sorted(runs) and all("/transfer/" in rel for rel in runs)
     shutil.rmtree(lost)
 
-    code, out, err = run_cli(capsys, "archive", "restore", "--archive", summary,
-                          "--protocol", lost)  # fmt: skip
-    assert code == 0, err
-    assert out.strip().endswith("2 restored, 0 exists")
+    restored = _restore_by_cli(capsys, summary, lost, "2 restored, 0 exists")
     original = _finished_results(ProtocolPlan.load(protocol))
-    restored = _finished_results(ProtocolPlan.load(lost))
     assert set(restored) == {key for key in original if "/transfer/" in key}
     for rel in runs:  # the learning curves read back as they were made
         made = read_eval_points(made_runs / rel / "metrics.jsonl", "eval/return_mean")
