@@ -50,7 +50,12 @@ subspaces: $(STAMP)
 
 # Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
 # where they are committed, then judge the paper's claims on every finished pair (one
-# whose protocol is still running has no summary.json yet and is left out).
+# whose protocol is still running has no summary.json yet and is left out): from its runs
+# under reports/ where they are here, else from its published summary (whose runs' curves,
+# and so the early and stability scores, are not there).
+FINISHED_HERE = $(patsubst %/summary.json,%,$(wildcard reports/*-$(BUDGET)/summary.json))
+PUBLISHED_ONLY = $(foreach d,$(patsubst %/summary.json,%,$(wildcard docs/protocol/*-$(BUDGET)/summary.json)),\
+	$(if $(filter $(notdir $(d)),$(notdir $(FINISHED_HERE))),,$(d)))
 publish:
 	mkdir -p docs/protocol/$(PAIR)-$(BUDGET)
 	cp reports/$(PAIR)-$(BUDGET)/protocol.json reports/$(PAIR)-$(BUDGET)/selection.json \
@@ -60,8 +65,7 @@ publish:
 		mkdir -p docs/protocol/$(PAIR)-$(BUDGET)/subspaces && \
 		cp reports/$(PAIR)-$(BUDGET)/subspaces/tsne/* reports/$(PAIR)-$(BUDGET)/subspaces/bound.txt \
 			reports/$(PAIR)-$(BUDGET)/subspaces/chosen.json docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
-	$(VENV)/bin/pved claims $(patsubst %/summary.json,%,$(wildcard reports/*-$(BUDGET)/summary.json)) \
-		--out docs/protocol/claims-$(BUDGET)
+	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 
 test: $(STAMP) lint
 	$(PY) -m pytest -q
