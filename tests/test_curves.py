@@ -18,6 +18,7 @@ from pved.analysis.curves import (
     panels_figure,
     plot_curves,
     plot_panels,
+    steps_to_baseline_finals,
     steps_to_reach,
 )
 from pved.errors import PvedError
@@ -108,6 +109,23 @@ def test_steps_to_reach_first_step_at_or_above_threshold() -> None:
     assert steps_to_reach(curve, 0.3) == 200
     assert steps_to_reach(curve, 0.0) == 0
     assert steps_to_reach(curve, 0.75) is None  # one run gets there, the mean does not
+
+
+def test_steps_to_baseline_finals_skips_a_baseline_that_learned_nothing() -> None:
+    # walker-hopper's case: PPO ends below where it started, the oracle learns
+    ppo = toy_curve([[0.0, -0.2, -0.5, -0.6]], "ppo")
+    oracle = toy_curve([[0.0, 1.0, 3.0, 5.0]], "oracle")
+    pved = toy_curve([[0.0, 2.0, 6.0, 7.0]], "pved")
+    reach = steps_to_baseline_finals([pved, ppo, oracle], ("ppo", "oracle"))
+    assert reach["pved"] == {"ppo_improved": False, "oracle_final": 5.0,
+                             "steps_to_oracle_final": 200}  # fmt: skip
+    assert reach["ppo"]["steps_to_oracle_final"] is None  # never gets there
+    assert reach["oracle"]["steps_to_oracle_final"] == 300
+    # a baseline that learned: every method gets the step count, as steps_to_reach gives it
+    learned = toy_curve([[0.0, 1.0, 2.0, 2.5]], "ppo")
+    reach = steps_to_baseline_finals([pved, learned], ("ppo", "oracle"))
+    assert reach["pved"] == {"ppo_final": 2.5, "steps_to_ppo_final": 200}
+    assert reach["ppo"]["steps_to_ppo_final"] == 300
 
 
 def two_panels() -> list[Panel]:

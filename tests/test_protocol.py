@@ -537,7 +537,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         assert entry["runs_finished"] == entry["runs_planned"] == len(budget.evaluation_seeds)
         final = entry["final"]
         assert final["mean_ci"][0] <= final["mean"] <= final["mean_ci"][1]
-        assert "steps_to_ppo_final" in entry
+        # a step count to PPO's final, or the note that PPO ended where it started
+        assert "steps_to_ppo_final" in entry or entry["ppo_improved"] is False
         # runs cut short by the kill were redone, not logged twice: one point per step
         assert entry["curve_steps"] == sorted(set(entry["curve_steps"]))
     selection = json.loads((out / "selection.json").read_text())["reacher"]["pved"]

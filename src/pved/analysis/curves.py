@@ -228,6 +228,32 @@ def steps_to_reach(curve: Curve, threshold: float) -> int | None:
     return int(curve.steps[reached[0]]) if reached.size else None
 
 
+def steps_to_baseline_finals(
+    curves: Sequence[Curve], baselines: Sequence[str]
+) -> dict[str, dict[str, Any]]:
+    """Per method of ``curves``, how fast it reaches each baseline's final performance.
+
+    For each baseline among ``curves`` (e.g. plain PPO, the oracle) whose mean curve ends
+    above its own first point, every method gets ``<baseline>_final`` (that last mean) and
+    ``steps_to_<baseline>_final`` (:func:`steps_to_reach`; None: never reached). A baseline
+    that ended at or below where it started learned nothing, and every method would
+    "reach" it at its first evaluation: the methods get ``<baseline>_improved: False``
+    instead, and no step count."""
+    out: dict[str, dict[str, Any]] = {c.method: {} for c in curves}
+    for name in baselines:
+        base = next((c for c in curves if c.method == name), None)
+        if base is None:
+            continue
+        final = float(base.mean[-1])
+        for curve in curves:
+            if final > float(base.mean[0]):
+                out[curve.method][f"{name}_final"] = final
+                out[curve.method][f"steps_to_{name}_final"] = steps_to_reach(curve, final)
+            else:
+                out[curve.method][f"{name}_improved"] = False
+    return out
+
+
 def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarray]:
     """(steps, values) of the records in ``metrics.jsonl`` that carry ``key``, by step.
 

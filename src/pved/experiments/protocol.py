@@ -51,6 +51,7 @@ from pved.experiments.runner import (
 )
 from pved.experiments.stages import (
     NO_TRANSFER,
+    ORACLE,
     REFERENCE_METHODS,
     build_bank,
     collect_pairs,
@@ -659,7 +660,7 @@ def _summarize(
 ) -> tuple[dict[str, Any], list[Panel]]:
     """:func:`summarize`, also returning the per-pair panels it drew (for ``pved plot``'s
     combined figure, so the runs are read and bootstrapped once)."""
-    from pved.analysis.curves import bootstrap_summary, plot_panels, steps_to_reach
+    from pved.analysis.curves import bootstrap_summary, plot_panels, steps_to_baseline_finals
 
     out = Path(out).resolve()
     plan = ProtocolPlan.load(out)
@@ -722,13 +723,10 @@ def _summarize(
         for curve in curves:
             methods[curve.method]["curve_steps"] = curve.steps.tolist()
             methods[curve.method]["curve_mean"] = curve.mean.tolist()
-        # steps to the plain-PPO baseline's final performance (its mean curve's last point)
-        ppo_curve = next((c for c in curves if c.method == NO_TRANSFER), None)
-        if ppo_curve is not None:
-            threshold = float(ppo_curve.mean[-1])
-            for curve in curves:
-                methods[curve.method]["ppo_final"] = threshold
-                methods[curve.method]["steps_to_ppo_final"] = steps_to_reach(curve, threshold)
+        # steps to plain PPO's final performance (its mean curve's last point), the
+        # paper's speed measure, and to the oracle's, where PPO learns nothing to reach
+        for method, reach in steps_to_baseline_finals(curves, (NO_TRANSFER, ORACLE)).items():
+            methods[method].update(reach)
         summary["pairs"][pair] = {"metric": metric, "methods": methods}
         if panel is not None:
             panels.append(panel)
@@ -751,6 +749,17 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
     return f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
 
 
+def _reach_cell(method_summary: Mapping[str, Any], baseline: str) -> str:
+    """The summary table's steps to ``baseline``'s final performance
+    (:func:`pved.analysis.curves.steps_to_baseline_finals`)."""
+    if method_summary.get(f"{baseline}_improved") is False:
+        return f"– ({baseline} did not improve)"
+    if f"{baseline}_final" not in method_summary:
+        return "–"
+    steps = method_summary.get(f"steps_to_{baseline}_final")
+    return "not reached" if steps is None else f"{steps:,}"
+
+
 def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
     b = plan.budget
     lines = [
@@ -769,8 +778,9 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             "",
             f"![curves](curves-{pair}.png)",
             "",
-            "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final | beta | init |",
-            "|---|---|---|---|---|---|---|",
+            "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final "
+            "| steps to the oracle's final | beta | init |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for method, m in info["methods"].items():
             final = m.get("final")
@@ -779,16 +789,14 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
                 iqm = _with_ci(final["iqm"], final["iqm_ci"])
             else:
                 mean = iqm = "–"
-            reach = m.get("steps_to_ppo_final", "–")
-            if "ppo_final" in m and reach is None:
-                reach = "not reached"
+            reach = [_reach_cell(m, baseline) for baseline in (NO_TRANSFER, ORACLE)]
             beta = m.get("beta", "–")
             init = m.get("init", "–")
             if m.get("shared_collapsed"):  # its shaping reward is zero: plain PPO in effect
                 init = f"{init} (collapsed)"
             lines.append(
                 f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
-                f"{reach} | {beta} | {init} |"
+                f"{reach[0]} | {reach[1]} | {beta} | {init} |"
             )
         lines.append("")
         for method, state in summary["selection"].get(pair, {}).items():
