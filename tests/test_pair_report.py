@@ -211,7 +211,7 @@ def test_report_embeds_every_image_and_the_numbers(tmp_path: Path) -> None:
     first_words = ["Learning", "Results", "t-SNE", "Time", "Theorem", "Videos"]
     assert [h.split()[0] for h in heads] == first_words
     # protocol: mean and IQM with CIs, β; transfer report: bootstrap CI, IQM, per seed
-    for text in ("0.713 [0.601, 0.820]", "0.733 [0.601, 0.820]", "4096", '<td class="num">0.01<'):
+    for text in ("0.713 [0.601, 0.820]", "0.733 [0.601, 0.820]", "4,096", '<td class="num">0.01<'):
         assert text in page, text
     for text in (
         "0.625 [0.350, 0.900]",

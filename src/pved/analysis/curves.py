@@ -8,7 +8,7 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections.abc import Callable, Hashable, Iterator, Sequence
+from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -252,6 +252,17 @@ def steps_to_baseline_finals(
             else:
                 out[curve.method][f"{name}_improved"] = False
     return out
+
+
+def reach_cell(method_summary: Mapping[str, Any], baseline: str) -> str:
+    """A summary table's cell for the steps to ``baseline``'s final performance, from a
+    method's entry in ``summary.json`` (:func:`steps_to_baseline_finals`' keys)."""
+    if method_summary.get(f"{baseline}_improved") is False:
+        return f"– ({baseline} did not improve)"
+    if f"{baseline}_final" not in method_summary:
+        return "–"
+    steps = method_summary.get(f"steps_to_{baseline}_final")
+    return "not reached" if steps is None else f"{steps:,}"
 
 
 def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarray]:

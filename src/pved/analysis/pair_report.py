@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from pved import __version__
+from pved.analysis.curves import reach_cell
 from pved.config import get_preset
 from pved.envs.registry import env_id
 from pved.errors import PvedError
@@ -213,14 +214,14 @@ def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     rows = []
     for method, m in methods.items():
         final = m.get("final") or {}
-        reach = m.get("steps_to_ppo_final")
         rows.append(
             [
                 str(method),
                 f"{m.get('runs_finished', '–')}/{m.get('runs_planned', '–')}",
                 _with_ci(final.get("mean"), final.get("mean_ci")),
                 _with_ci(final.get("iqm"), final.get("iqm_ci")),
-                "not reached" if "ppo_final" in m and reach is None else _fmt(reach),
+                reach_cell(m, "ppo"),
+                reach_cell(m, "oracle"),
                 _sig(m.get("beta")),
                 _fmt(m.get("init")),
             ]
@@ -229,14 +230,14 @@ def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     notes = [
         f"Protocol {directory} ({budget} budget): final {label} over the evaluation runs, "
         "mean and interquartile mean (IQM) with 95% stratified-bootstrap CIs (rliable); "
-        "'steps to PPO's final' is the env steps a method's mean curve needs to reach plain "
-        "PPO's final value."
+        "'steps to PPO's final' (the oracle's) is the env steps a method's mean curve needs "
+        "to reach the last point of plain PPO's (the oracle's) mean curve."
     ]
     failed, blocked = len(summary.get("failed") or {}), len(summary.get("blocked") or [])
     if failed or blocked:
         notes.append(f"{failed} runs failed and {blocked} were blocked (see {summary_file}).")
     header = ["method", "runs", f"final {label}: mean [95% CI]", "IQM [95% CI]"]
-    header += ["steps to PPO's final", "β", "init"]
+    header += ["steps to PPO's final", "steps to the oracle's final", "β", "init"]
     parts.tables.append(f'<p class="note">{escape(" ".join(notes))}</p>' + _table(header, rows))
     if parts.render_videos:
         _add_method_videos(pair, directory, methods, parts)
@@ -644,7 +645,8 @@ def build_pair_report(
     Each input is recognised by what it contains (a directory may hold several kinds):
 
     * protocol directory (``pved protocol``): ``protocol.json`` listing ``pair``, its
-      ``summary.json`` (table: mean and IQM with CIs, steps to PPO's final, β, init),
+      ``summary.json`` (table: mean and IQM with CIs, steps to PPO's and the oracle's
+      final, β, init),
       ``curves-<pair>.png``, and (with ``videos``) one rollout per method of the policy of
       its first evaluation run, rendered once into ``videos/<method>.gif`` there;
     * transfer-report directory (``pved report`` without DIRs): ``results.json`` (table)

@@ -749,18 +749,9 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
     return f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
 
 
-def _reach_cell(method_summary: Mapping[str, Any], baseline: str) -> str:
-    """The summary table's steps to ``baseline``'s final performance
-    (:func:`pved.analysis.curves.steps_to_baseline_finals`)."""
-    if method_summary.get(f"{baseline}_improved") is False:
-        return f"– ({baseline} did not improve)"
-    if f"{baseline}_final" not in method_summary:
-        return "–"
-    steps = method_summary.get(f"steps_to_{baseline}_final")
-    return "not reached" if steps is None else f"{steps:,}"
-
-
 def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
+    from pved.analysis.curves import reach_cell
+
     b = plan.budget
     lines = [
         f"# Protocol summary ({b.name} budget)",
@@ -789,7 +780,7 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
                 iqm = _with_ci(final["iqm"], final["iqm_ci"])
             else:
                 mean = iqm = "–"
-            reach = [_reach_cell(m, baseline) for baseline in (NO_TRANSFER, ORACLE)]
+            reach = [reach_cell(m, baseline) for baseline in (NO_TRANSFER, ORACLE)]
             beta = m.get("beta", "–")
             init = m.get("init", "–")
             if m.get("shared_collapsed"):  # its shaping reward is zero: plain PPO in effect
