@@ -245,8 +245,9 @@ def steps_to_baseline_finals(
         if base is None:
             continue
         final = float(base.mean[-1])
+        improved = final > float(base.mean[0])
         for curve in curves:
-            if final > float(base.mean[0]):
+            if improved:
                 out[curve.method][f"{name}_final"] = final
                 out[curve.method][f"steps_to_{name}_final"] = steps_to_reach(curve, final)
             else:

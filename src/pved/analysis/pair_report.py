@@ -646,9 +646,9 @@ def build_pair_report(
 
     * protocol directory (``pved protocol``): ``protocol.json`` listing ``pair``, its
       ``summary.json`` (table: mean and IQM with CIs, steps to PPO's and the oracle's
-      final, β, init),
-      ``curves-<pair>.png``, and (with ``videos``) one rollout per method of the policy of
-      its first evaluation run, rendered once into ``videos/<method>.gif`` there;
+      final, β, init), ``curves-<pair>.png``, and (with ``videos``) one rollout per method
+      of the policy of its first evaluation run, rendered once into
+      ``videos/<method>.gif`` there;
     * transfer-report directory (``pved report`` without DIRs): ``results.json`` (table)
       and ``curves_*.png``;
     * t-SNE directory (``pved tsne --out``): ``numbers.json`` and/or ``tsne_shared.png``,

@@ -87,6 +87,14 @@ def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[
         yield name, (run_dir / name).read_bytes()
 
 
+def _write_if_changed(path: Path, content: bytes) -> bool:
+    """Write ``content`` to ``path`` atomically unless it holds it already; True if written."""
+    if path.exists() and path.read_bytes() == content:
+        return False
+    atomic_write_bytes(path, content)
+    return True
+
+
 def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str, int]:
     """Copy the protocol's finished policy, model and transfer runs, slimmed (module
     docstring), and its ``protocol.json`` into ``archive_dir``; returns counts:
@@ -99,9 +107,7 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
     results = _finished_results(plan)
     counts = {"written": 0, "unchanged": 0}
     archive.mkdir(parents=True, exist_ok=True)
-    plan_bytes = (plan.out / PLAN_FILE).read_bytes()
-    if not (archive / PLAN_FILE).exists() or (archive / PLAN_FILE).read_bytes() != plan_bytes:
-        atomic_write_bytes(archive / PLAN_FILE, plan_bytes)
+    _write_if_changed(archive / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
     for job in plan.expand(results):
         if job.key not in results or job.run_dir is None:
             continue
@@ -112,23 +118,10 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
             files = list(_archived_files(job.fn, job.kwargs.get("method"), job.run_dir))
         except (OSError, ValueError, UnicodeDecodeError) as err:
             raise PvedError(f"finished run {job.key} cannot be archived: {err}") from None
-        changed = False
-        for name, content in files:
-            dest = archive / RUNS / rel / name
-            if dest.exists() and dest.read_bytes() == content:
-                continue
-            atomic_write_bytes(dest, content)
-            changed = True
-        counts["written" if changed else "unchanged"] += 1
+        # a list, not a generator: every changed file is written, not just the first
+        changed = [_write_if_changed(archive / RUNS / rel / name, c) for name, c in files]
+        counts["written" if any(changed) else "unchanged"] += 1
     return counts
-
-
-def _write_if_changed(path: Path, content: bytes) -> bool:
-    """Write ``content`` to ``path`` atomically unless it holds it already; True if written."""
-    if path.exists() and path.read_bytes() == content:
-        return False
-    atomic_write_bytes(path, content)
-    return True
 
 
 def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str, int]:

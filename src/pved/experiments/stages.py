@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import warnings
 from collections.abc import Callable
@@ -48,7 +47,7 @@ from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import PPOConfig, train_ppo
-from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path
+from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
@@ -102,10 +101,10 @@ def file_digest(path: Path) -> str:
     data = Path(path).read_bytes()
     if data[:4] == b"PK\x03\x04":  # a zip archive: a PyTorch file, or a numpy .npz
         try:
-            state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-        except Exception:  # torch raises many types: not a PyTorch file
-            state = None
-        if state is not None:
+            state = safe_torch_load(Path(path))
+        except PvedError:  # not a PyTorch file: hashed by its bytes
+            pass
+        else:
             digest = hashlib.sha256(b"pved-torch-state")
             _hash_state(digest, state)
             return digest.hexdigest()[:16]
