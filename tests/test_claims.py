@@ -331,6 +331,12 @@ def test_cli_writes_claims_and_rejects_bad_dirs(
     assert md.count("## Claim ") == 7
     assert "budget **paper**" in md and "pved 5, ppo 5" in md
     assert "| pved beats ppo | reacher | **holds** |" in md
+    # the matrix: one row per part, the four pairs in Fig. 3's order
+    assert "| claim | part | reacher | walker-hopper | jaco-fetch | humanoid-ant |" in md
+    row = next(line for line in md.splitlines() if line.startswith("| 1 | pved beats ppo |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == "holds (0.400)" and cells[3] == cells[4] == cells[5] == "undecided"
+    assert "| 3 | pved-vae beats ppo |  |  |  | undecided |" in md
     # default OUT: the first DIR
     assert write_claims([a]) == a / "claims.md" and (a / "claims.json").is_file()
 

@@ -570,8 +570,37 @@ def _part_row(part: dict[str, Any]) -> str:
     return "| " + " | ".join(c.replace("|", "/") for c in cells) + " |"
 
 
+def _matrix_cell(part: dict[str, Any] | None) -> str:
+    if part is None:
+        return ""
+    cell = part["verdict"]
+    if "difference" in part:
+        cell += f" ({_num(part['difference']['value'])})"
+    return cell
+
+
+def verdict_matrix(result: dict[str, Any]) -> str:
+    """Markdown table of every part's verdict, one row per claim part and one column per
+    pair (Fig. 3's order), the difference A − B beside each decided or measured part, so
+    that a claim's fate on all four pairs reads along one row."""
+    pairs = list(FOUR) + [p for p in result["pairs"] if p not in FOUR]
+    rows: dict[tuple[int, str], dict[str, dict[str, Any]]] = {}
+    for claim in result["claims"]:
+        for part in claim["parts"]:
+            rows.setdefault((claim["claim"], part["part"]), {})[part["pair"]] = part
+    lines = [
+        "| claim | part | " + " | ".join(pairs) + " |",
+        "|---|---|" + "---|" * len(pairs),
+    ]
+    for (number, name), by_pair in rows.items():
+        cells = [str(number), name, *(_matrix_cell(by_pair.get(p)) for p in pairs)]
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def claims_markdown(result: dict[str, Any]) -> str:
-    """``claims.md``: the inputs (budgets, run counts), then one table per claim."""
+    """``claims.md``: the inputs (budgets, run counts), the verdicts by claim and by pair,
+    then one table per claim."""
     lines = ["# The paper's claims (IV.B, Fig. 3) against these runs", ""]
     for entry in result["inputs"]:
         lines.append(
@@ -595,6 +624,8 @@ def claims_markdown(result: dict[str, Any]) -> str:
     for claim in result["claims"]:
         counts = " / ".join(str(sum(p["verdict"] == v for p in claim["parts"])) for v in VERDICTS)
         lines.append(f"| {claim['claim']} | **{claim['verdict']}** | {counts} |")
+    lines += ["", "Every part by pair (difference A − B in brackets; blank: not a part there):"]
+    lines += ["", verdict_matrix(result)]
     header = (
         "| part | pair | verdict | A | B | difference [95% CI] | steps to PPO's final |\n"
         "|---|---|---|---|---|---|---|"
