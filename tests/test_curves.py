@@ -18,6 +18,7 @@ from pved.analysis.curves import (
     panels_figure,
     plot_curves,
     plot_panels,
+    reward_scale,
     steps_to_baseline_finals,
     steps_to_reach,
 )
@@ -126,6 +127,34 @@ def test_steps_to_baseline_finals_skips_a_baseline_that_learned_nothing() -> Non
     reach = steps_to_baseline_finals([pved, learned], ("ppo", "oracle"))
     assert reach["pved"] == {"ppo_final": 2.5, "steps_to_ppo_final": 200}
     assert reach["ppo"]["steps_to_ppo_final"] == 300
+
+
+def write_rollouts(run_dir: Path, rows: list[tuple[float, float]]) -> Path:
+    """A transfer run's metrics.jsonl: an evaluation row, then one row per rollout with
+    its (shaping, env reward) means, then another evaluation row."""
+    run_dir.mkdir(parents=True)
+    lines = [{"step": 0, "eval/success_rate": 0.0}]
+    lines += [
+        {"step": 2048 * (i + 1), "rollout/reward_shaping": sh, "rollout/env_reward": env}
+        for i, (sh, env) in enumerate(rows)
+    ]
+    lines.append({"step": 2048 * len(rows), "eval/success_rate": 0.5})
+    (run_dir / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
+    return run_dir
+
+
+def test_reward_scale_averages_first_and_last_rollouts_over_runs(tmp_path: Path) -> None:
+    a = write_rollouts(tmp_path / "a", [(-188.0, 0.0), (-3.0, 0.1), (-2.0, 0.5)])
+    b = write_rollouts(tmp_path / "b", [(-12.0, 0.0), (-1.0, 0.3)])
+    scale = reward_scale([a, b])
+    assert scale == {"shaping_first": -100.0, "shaping_last": -1.5,
+                     "env_reward_first": 0.0, "env_reward_last": 0.4, "runs": 2}  # fmt: skip
+    # runs without a shaping term (plain PPO) or without metrics are left out
+    ppo = tmp_path / "ppo"
+    ppo.mkdir()
+    (ppo / "metrics.jsonl").write_text('{"step": 0, "eval/success_rate": 0.0}\n')
+    assert reward_scale([a, ppo, tmp_path / "missing"]) == reward_scale([a])
+    assert reward_scale([ppo]) is None and reward_scale([]) is None
 
 
 def two_panels() -> list[Panel]:

@@ -547,6 +547,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     for name in ("curves.png", "curves-reacher.png", "summary.md", "status.json"):
         assert (out / name).stat().st_size > 0
     assert "| pved |" in (out / "summary.md").read_text()
+    # the shaping term's size against the env's reward, for shaped methods only
+    scale = methods["pved"]["reward_scale"]
+    assert scale["runs"] == len(budget.evaluation_seeds) and scale["shaping_first"] < 0
+    assert "reward_scale" not in methods["ppo"]
     # the selected model's collapse check is carried into the summary (none for PPO)
     assert isinstance(methods["pved"]["shared_collapsed"], bool)
     assert "shared_collapsed" not in methods["ppo"]

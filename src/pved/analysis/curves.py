@@ -282,6 +282,45 @@ def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarr
     return np.asarray(steps, dtype=np.int64), np.asarray([last[s] for s in steps], np.float64)
 
 
+SHAPING_KEY = "rollout/reward_shaping"
+"""The Eq. 10 term, −β·D per step, averaged over a PPO rollout (logged by transfer runs)."""
+ENV_REWARD_KEY = "rollout/env_reward"
+"""The env's own reward per step, averaged over a PPO rollout."""
+
+
+def reward_scale(run_dirs: Sequence[Path]) -> dict[str, float | int] | None:
+    """How large the shaping term is against the env's reward, at the start and the end of
+    training: each run's first and last logged rollout means of :data:`SHAPING_KEY` and
+    :data:`ENV_REWARD_KEY`, averaged over ``run_dirs``.
+
+    Returns ``{"shaping_first", "shaping_last", "env_reward_first", "env_reward_last",
+    "runs"}`` (``runs``: how many runs logged both), or None when none did: plain PPO and
+    the oracle have no shaping term, and a run restored from an archive keeps only its
+    evaluation rows."""
+    first: list[tuple[float, float]] = []
+    last: list[tuple[float, float]] = []
+    for run_dir in run_dirs:
+        metrics = Path(run_dir) / "metrics.jsonl"
+        if not metrics.exists():
+            continue
+        shaping = read_eval_points(metrics, SHAPING_KEY)[1]
+        env_reward = read_eval_points(metrics, ENV_REWARD_KEY)[1]
+        if len(shaping) == 0 or len(shaping) != len(env_reward):
+            continue
+        first.append((shaping[0], env_reward[0]))
+        last.append((shaping[-1], env_reward[-1]))
+    if not first:
+        return None
+    start, end = np.mean(first, axis=0), np.mean(last, axis=0)
+    return {
+        "shaping_first": float(start[0]),
+        "shaping_last": float(end[0]),
+        "env_reward_first": float(start[1]),
+        "env_reward_last": float(end[1]),
+        "runs": len(first),
+    }
+
+
 def load_curve(method: str, run_dirs: list[Path], seeds: list[int], key: str) -> Curve:
     """Stack the evaluation points of several seeds' runs (same schedule) into a curve."""
     series = [read_eval_points(d / "metrics.jsonl", key) for d in run_dirs]

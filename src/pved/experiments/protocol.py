@@ -660,7 +660,12 @@ def _summarize(
 ) -> tuple[dict[str, Any], list[Panel]]:
     """:func:`summarize`, also returning the per-pair panels it drew (for ``pved plot``'s
     combined figure, so the runs are read and bootstrapped once)."""
-    from pved.analysis.curves import bootstrap_summary, plot_panels, steps_to_baseline_finals
+    from pved.analysis.curves import (
+        bootstrap_summary,
+        plot_panels,
+        reward_scale,
+        steps_to_baseline_finals,
+    )
 
     out = Path(out).resolve()
     plan = ProtocolPlan.load(out)
@@ -717,6 +722,10 @@ def _summarize(
                     }
                     for j in done
                 ]
+                # the shaping term against the env's reward: why a β does what it does
+                scale = reward_scale([j.run_dir for j in done if j.run_dir is not None])
+                if scale is not None:
+                    entry["reward_scale"] = scale
             methods[method] = entry
         panel = pair_panel(plan, pair, results)
         curves = panel.curves if panel else []
@@ -749,6 +758,22 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
     return f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
 
 
+def _scale_cells(method_summary: Mapping[str, Any]) -> tuple[str, str]:
+    """The summary table's two reward-scale cells of one method (``–`` without a shaping
+    term): the Eq. 10 term with its distance D (a KL in nats, or a point-code model's
+    squared distance) and the env's reward, each at the first and last rollout."""
+    scale = method_summary.get("reward_scale")
+    if not scale:
+        return "–", "–"
+    first, last = scale["shaping_first"], scale["shaping_last"]
+    shaping = f"{first:.3g} → {last:.3g}"
+    beta = method_summary.get("beta")
+    if isinstance(beta, int | float) and beta > 0:
+        shaping += f" (D {-first / beta:,.4g} → {-last / beta:,.4g})"
+    env = f"{scale['env_reward_first']:.3g} → {scale['env_reward_last']:.3g}"
+    return shaping, env
+
+
 def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
     from pved.analysis.curves import reach_cell
 
@@ -770,8 +795,9 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             f"![curves](curves-{pair}.png)",
             "",
             "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final "
-            "| steps to the oracle's final | beta | init |",
-            "|---|---|---|---|---|---|---|---|",
+            "| steps to the oracle's final | beta | init | shaping term per step, first → "
+            "last rollout (D = term / −β) | env reward per step, first → last rollout |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for method, m in info["methods"].items():
             final = m.get("final")
@@ -785,9 +811,10 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             init = m.get("init", "–")
             if m.get("shared_collapsed"):  # its shaping reward is zero: plain PPO in effect
                 init = f"{init} (collapsed)"
+            shaping, env_reward = _scale_cells(m)
             lines.append(
                 f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
-                f"{reach[0]} | {reach[1]} | {beta} | {init} |"
+                f"{reach[0]} | {reach[1]} | {beta} | {init} | {shaping} | {env_reward} |"
             )
         lines.append("")
         for method, state in summary["selection"].get(pair, {}).items():
