@@ -149,6 +149,20 @@ def _tune(
         ({0.1: 0.5, 0.01: 0.2, 1.0: 0.4}, [0.1, 0.01, 1.0], 0.1),
         # a decade down, then back: 0.01 beats 0.001, and 0.1 is tried no more
         ({0.1: 0.2, 0.01: 0.5, 0.001: 0.3}, [0.1, 0.01, 0.001], 0.01),
+        # a complete tie points nowhere (jaco-fetch's shared-only: success 0 and return 0
+        # at every beta): a decade past both edges, and again, up to the limit; the grid's
+        # order then decides
+        (
+            dict.fromkeys([0.1, 0.01, 1.0, 0.001, 10.0, 0.0001], 0.0),
+            [0.1, 0.01, 1.0, 0.001, 10.0, 0.0001],
+            0.1,
+        ),
+        # ... until one beta does better, past whose edge the search then goes on alone
+        (
+            {0.1: 0.0, 0.01: 0.0, 1.0: 0.0, 0.001: 0.4, 0.0001: 0.3},
+            [0.1, 0.01, 1.0, 0.001, 0.0001],
+            0.001,
+        ),
     ],
 )
 def test_beta_search_goes_past_the_grid_while_its_edge_does_best(

@@ -130,6 +130,27 @@ def _next_decade(
     return None
 
 
+def _betas_beyond(
+    grid: Sequence[float],
+    candidates: Sequence[Candidate],
+    extensions: int,
+    resolution: float | None = None,
+) -> list[float]:
+    """The betas to try next after ``candidates`` (one per beta tried, init 0): the next
+    decade past the edge where the best one lies (:func:`_next_decade`), or, when every
+    candidate ties with every other (score and return: e.g. all zero on a sparse task,
+    where nothing points either way), the next decade past both edges. Empty when the
+    search is done."""
+    tried = [c.beta for c in candidates]
+    keys = {c.key(resolution) for c in candidates}
+    if len(candidates) > 1 and len(keys) == 1:
+        edges = (max(tried), min(tried))
+    else:
+        edges = (_best(candidates, resolution).beta,)
+    beyond = (_next_decade(grid, tried, edge, extensions) for edge in edges)
+    return [beta for beta in beyond if beta is not None]
+
+
 def _beta_tag(beta: float) -> str:
     return f"{beta:g}"
 
@@ -396,12 +417,13 @@ class ProtocolPlan:
                 state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
                 if len(beta_candidates) < len(tried):
                     break
-                best_beta = _best(beta_candidates, preset.metric_resolution).beta
-                beyond = _next_decade(grid, tried, best_beta, b.beta_grid_extensions)
-                if beyond is None:
-                    chosen_beta = best_beta
+                beyond = _betas_beyond(
+                    grid, beta_candidates, b.beta_grid_extensions, preset.metric_resolution
+                )
+                if not beyond:
+                    chosen_beta = _best(beta_candidates, preset.metric_resolution).beta
                     break
-                tried.append(beyond)
+                tried.extend(beyond)
             if len(tried) > len(grid):
                 state["beta_extended"] = tried[len(grid) :]
             if chosen_beta is None:
