@@ -143,6 +143,7 @@ def _betas_beyond(
     search is done."""
     tried = [c.beta for c in candidates]
     keys = {c.key(resolution) for c in candidates}
+    edges: tuple[float, ...]
     if len(candidates) > 1 and len(keys) == 1:
         edges = (max(tried), min(tried))
     else:
