@@ -630,6 +630,23 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         assert (out / "subspaces" / "tsne" / name).stat().st_size > 0
     assert "Theorem 1" in (out / "subspaces" / "report.html").read_text()
 
+    # the scale of Eq. 10's distance on the training pairs, matched and shuffled
+    scaled = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "shaping_scale.py"), str(out), "--rows", "500"],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert scaled.returncode == 0, scaled.stderr[-3000:]
+    scales = json.loads((out / "subspaces" / "shaping_scale.json").read_text())["pairs"]
+    assert set(scales["reacher"]) == {"pved"}  # plain PPO has no model
+    scale = scales["reacher"]["pved"]
+    assert scale["init"] == selection["init"]
+    assert 0 <= scale["matched"]["q50"] <= scale["matched"]["q95"]
+    if not methods["pved"]["shared_collapsed"]:
+        # a model that learned anything puts a step nearer its own pair than a stranger
+        assert scale["matched"]["q50"] < scale["shuffled"]["q50"]
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
