@@ -328,6 +328,23 @@ def _ship_this_module_to(backend: str) -> None:
         cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
+@pytest.mark.parametrize(("driver", "worker"), [(0, 15), (15, 15), (17, 17), (19, 19)])
+def test_a_worker_is_at_least_as_nice_as_its_driver(driver: int, worker: int) -> None:
+    # a fresh interpreter: niceness only goes up, and this test's own must not change
+    code = (
+        "import os\n"
+        f"os.nice({driver} - os.nice(0))\n"
+        "from pved.experiments.runner import _init_process_worker\n"
+        "_init_process_worker()\n"
+        "print(os.nice(0))\n"
+    )
+    if os.nice(0) > driver:
+        pytest.skip(f"this test process already runs at niceness {os.nice(0)}")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env())
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout) == worker
+
+
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_retries_then_reports_failures_and_blocked_jobs(
     tmp_path: Path, backend: str

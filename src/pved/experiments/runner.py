@@ -114,8 +114,9 @@ def _call(fn: Callable[..., Any], kwargs: Mapping[str, Any]) -> Any:
 #: The backends :func:`run_jobs` knows; ``auto`` is Ray where it is installed.
 BACKENDS = ("auto", "ray", "processes")
 
-#: Worker niceness of the ``processes`` backend, Ray's default for its workers: on a
-#: shared machine, interactive work keeps priority over a long grid.
+#: Least niceness of a ``processes`` worker, Ray's default for its workers: on a shared
+#: machine, interactive work keeps priority over a long grid. A driver started nicer than
+#: this (``nice -n 19 pved protocol ...``) keeps its own niceness for its workers.
 WORKER_NICENESS = 15
 
 
@@ -199,10 +200,14 @@ class _RayExecutor:
 
 
 def _init_process_worker() -> None:
-    """A ``processes`` worker: Ray's niceness, and death with the driver (Linux), so a
-    killed driver leaves no run writing behind the next invocation's back."""
+    """A ``processes`` worker: at least Ray's niceness, and death with the driver (Linux),
+    so a killed driver leaves no run writing behind the next invocation's back.
+
+    ``os.nice`` adds to the niceness the worker inherited from its driver, so it is raised
+    only up to :data:`WORKER_NICENESS`: two grids run side by side at niceness 15 and 19
+    keep that order (adding 15 to both would put both at the ceiling, 19)."""
     with contextlib.suppress(OSError):
-        os.nice(WORKER_NICENESS)
+        os.nice(max(0, WORKER_NICENESS - os.nice(0)))
     if sys.platform.startswith("linux"):
         import ctypes
 
