@@ -15,6 +15,15 @@ A transfer run whose D on the target task stays near the shuffled level has not 
 the target's shared codes any closer to the source's than chance. The rows are a seeded
 sample, so the numbers are reproducible.
 
+A second table asks whether D tells a good target from a bad one: for each shaped
+method's evaluation runs, D at the run's last PPO rollout (its logged shaping term over
+−β) against the run's final score, with Spearman's rank correlation over the runs. If
+Eq. 10 rewards what the task needs, the runs that end nearer the source's codes should
+score higher (a negative ρ). Its 95% interval is drawn by PPO seed, as `pved claims`
+draws its differences: a shaped method's runs of one seed (its three source policies)
+are not independent, so the interval is wide with five seeds. Runs restored from an
+archive keep no rollout rows and are left out.
+
     .venv/bin/python scripts/shaping_scale.py reports/jaco-fetch-quick
 
 Prints a Markdown table and writes ``PROTOCOL_DIR/subspaces/shaping_scale.json``.
@@ -30,7 +39,9 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy.stats import spearmanr
 
+from pved.analysis.curves import SHAPING_KEY, read_eval_points
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.registry import load_model
 from pved.pairing.dataset import load_dataset
@@ -67,6 +78,60 @@ def shaping_scale(
     return out
 
 
+def end_distance_against_score(
+    runs_root: Path, runs: list[dict[str, Any]], metric: str, beta: float
+) -> dict[str, Any]:
+    """Each evaluation run's D at its last rollout (``-shaping / beta``) beside its final
+    ``metric``, and Spearman's rho between the two over the runs that logged rollouts
+    (None when fewer than three did, or when either column is constant)."""
+    points = []
+    for run in runs:
+        metrics = runs_root / run["key"] / "metrics.jsonl"
+        score = run.get(metric)
+        if score is None or not metrics.exists():
+            continue
+        shaping = read_eval_points(metrics, SHAPING_KEY)[1]
+        if len(shaping):
+            points.append({"run": run["key"], "d_end": -shaping[-1] / beta, metric: score})
+    seeds = [run["seed"] for run in runs if any(p["run"] == run["key"] for p in points)]
+    d_end = np.array([p["d_end"] for p in points])
+    scores = np.array([float(p[metric]) for p in points])
+    rho, ci = spearman_by_seed(d_end, scores, seeds)
+    return {"runs": points, "spearman_rho": rho, "spearman_rho_ci": ci}
+
+
+def _spearman(x: np.ndarray, y: np.ndarray) -> float | None:
+    """Spearman's rho of (n,) and (n,), or None when it is undefined (n < 3, or a constant
+    column: e.g. every run scored 0)."""
+    if x.size < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return None
+    return float(spearmanr(x, y).statistic)
+
+
+def spearman_by_seed(
+    x: np.ndarray, y: np.ndarray, seeds: list[int], reps: int = 2000, seed: int = 0
+) -> tuple[float | None, list[float] | None]:
+    """Spearman's rho of (n,) and (n,) with its 95% percentile bootstrap interval, the runs
+    of one PPO seed drawn together (as :func:`pved.analysis.curves.bootstrap_difference`
+    draws clusters). A resample whose rho is undefined (its runs all scored alike) counts
+    as 0, no association: skipping it would keep only the resamples that drew the few
+    scoring seeds, and narrow the interval beyond the evidence. Both are None when the
+    point estimate is undefined."""
+    rho = _spearman(x, y)
+    if rho is None:
+        return None, None
+    labels = sorted(set(seeds))
+    members = {label: np.flatnonzero(np.asarray(seeds) == label) for label in labels}
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(reps):
+        picked = rng.choice(len(labels), size=len(labels), replace=True)
+        rows = np.concatenate([members[labels[i]] for i in picked])
+        value = _spearman(x[rows], y[rows])
+        draws.append(0.0 if value is None else value)
+    return rho, [float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5))]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
@@ -99,6 +164,32 @@ def main() -> None:
             print(
                 f"| {pair} | {method} | {init} | {m['q50']:.3g} / {m['mean']:.3g} | "
                 f"{s['q50']:.3g} / {s['mean']:.3g} |"
+            )
+    print()
+    print(
+        "| pair | method | runs | D at the last rollout: min / median / max "
+        "| best run's D | ρ(D, score) |"
+    )
+    print("|---|---|---|---|---|---|")
+    for pair, entry in summary["pairs"].items():
+        metric = entry["metric"]
+        for method, state in entry["methods"].items():
+            if state.get("beta") is None:  # no shaping term
+                continue
+            ends = end_distance_against_score(runs_root, state["runs"], metric, state["beta"])
+            result["pairs"][pair][method]["end_of_runs"] = ends
+            if not ends["runs"]:
+                continue
+            d_end = np.array([p["d_end"] for p in ends["runs"]])
+            best = max(ends["runs"], key=lambda p: float(p[metric]))
+            rho = "–" if ends["spearman_rho"] is None else f"{ends['spearman_rho']:.2f}"
+            if ends["spearman_rho_ci"] is not None:
+                lo, hi = ends["spearman_rho_ci"]
+                rho += f" [{lo:.2f}, {hi:.2f}]"
+            print(
+                f"| {pair} | {method} | {len(d_end)} | {d_end.min():.3g} / "
+                f"{np.median(d_end):.3g} / {d_end.max():.3g} | {best['d_end']:.3g} "
+                f"({metric} {best[metric]:.3g}) | {rho} |"
             )
     out = args.protocol / "subspaces" / "shaping_scale.json"
     out.parent.mkdir(exist_ok=True)

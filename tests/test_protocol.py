@@ -663,6 +663,16 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     if not methods["pved"]["shared_collapsed"]:
         # a model that learned anything puts a step nearer its own pair than a stranger
         assert scale["matched"]["q50"] < scale["shuffled"]["q50"]
+    # D at each evaluation run's last rollout is its logged shaping term over -beta
+    ends = scale["end_of_runs"]
+    assert {p["run"] for p in ends["runs"]} == {r["key"] for r in pved_runs}
+    for point in ends["runs"]:
+        rows = [json.loads(x) for x in (out / "runs" / point["run"] / "metrics.jsonl").open()]
+        last = [r["rollout/reward_shaping"] for r in rows if "rollout/reward_shaping" in r][-1]
+        assert point["d_end"] == pytest.approx(-last / selection["beta"])
+    if ends["spearman_rho"] is not None:
+        lo, hi = ends["spearman_rho_ci"]
+        assert -1 <= lo <= hi <= 1
 
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
@@ -695,3 +705,33 @@ def test_protocol_bad_input_is_one_line(tmp_path: Path, args: list[str], message
 def test_plot_of_a_directory_that_is_no_protocol(tmp_path: Path) -> None:
     res = subprocess.run([*PVED, "plot", str(tmp_path)], env=_env(), capture_output=True, text=True)
     assert res.returncode == 2 and "not a protocol directory" in res.stderr
+
+
+def _script(name: str) -> Any:
+    """A module of scripts/ (not a package), loaded by path."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
+    import numpy as np
+
+    spearman_by_seed = _script("shaping_scale").spearman_by_seed
+    # five seeds, three runs each; only seed 3's runs score, and they end nearest
+    seeds = [s for s in range(5) for _ in range(3)]
+    d_end = np.array([5.0, 6, 7, 5, 6, 7, 5, 6, 7, 1, 2, 3, 5, 6, 7])
+    score = np.array([0.0] * 9 + [1.0, 1.0, 1.0] + [0.0] * 3)
+    rho, ci = spearman_by_seed(d_end, score, seeds)
+    assert rho is not None and rho < -0.5
+    # a resample without seed 3 has no scoring run: rho 0 there, so 0 is inside
+    assert ci is not None and ci[0] < rho and ci[1] == pytest.approx(0.0)
+    # every run alike: no rho to give
+    assert spearman_by_seed(d_end, np.zeros(15), seeds) == (None, None)
+    # seeds that each score alike and end alike: an exact, stable association
+    rho, ci = spearman_by_seed(np.arange(15.0), -np.arange(15.0), seeds)
+    assert rho == pytest.approx(-1.0) and ci == pytest.approx([-1.0, -1.0])
