@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+import torch
 
 from pved import __version__
 from pved.cli import main
+from pved.envs.base import BatchedEnv
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan
-from pved.runs import atomic_write_json
+from pved.rl.policy import Policy
+from pved.rl.ppo import PPOConfig, train_ppo
+from pved.runs import Run, atomic_write_json
 
 
 def run_cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
@@ -28,3 +35,41 @@ def reacher_smoke_protocol(out: Path) -> Path:
     for key in ("reacher/pairs", "reacher/bank/src0", "reacher/model/pved/init0"):
         jobs[key].fn(**jobs[key].kwargs)
     return out
+
+
+def params_of(policy: Policy) -> np.ndarray:
+    """A policy's network weights as one flat array."""
+    return torch.cat([p.detach().flatten() for p in policy.net.parameters()]).numpy().copy()
+
+
+class Interrupt(Exception):
+    """Raised from an evaluation callback to kill a training run mid-way."""
+
+
+def assert_ppo_resumes_exactly(
+    make_env: Callable[[], BatchedEnv], cfg: PPOConfig, root: Path
+) -> None:
+    """PPO killed after its checkpoint at update 2 and resumed ends with the weights of an
+    uninterrupted run (``cfg``: 5 updates, a checkpoint every 2), without the warning of
+    a resume that had to start fresh episodes, and logs each update once."""
+    per_update = cfg.num_envs * cfg.steps_per_env
+    straight = train_ppo(make_env(), cfg, Run(root / "a", {"c": 1}), progress=False)
+
+    def crash_at_4th_update(policy: Policy, steps: int) -> dict[str, float]:
+        if steps == 4 * per_update:  # after the checkpoint at update 2, before the one at 4
+            raise Interrupt
+        return {}
+
+    run_b = Run(root / "b", {"c": 1})
+    with pytest.raises(Interrupt):
+        train_ppo(make_env(), cfg, run_b, eval_fn=crash_at_4th_update, progress=False)
+    assert run_b.latest_checkpoint()["global_step"] == 2 * per_update  # type: ignore[index]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        resumed = train_ppo(make_env(), cfg, Run(root / "b", {"c": 1}), progress=False)
+    assert not [w for w in caught if "freshly reset episodes" in str(w.message)]
+    assert np.array_equal(params_of(straight), params_of(resumed))
+    assert np.array_equal(straight.obs_normalizer.rms.mean, resumed.obs_normalizer.rms.mean)
+    # the updates logged after the checkpoint by the interrupted run are not duplicated
+    logged = [r["step"] for r in run_b.read_metrics() if "loss/approx_kl" in r]
+    assert logged == [k * per_update for k in range(1, 6)]

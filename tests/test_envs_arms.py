@@ -150,11 +150,11 @@ def test_get_state_set_state_continue_exactly_through_contacts() -> None:
     down = np.array([0.0, 1.0, 1.0, 1.0])  # presses the peg onto the table
     for _ in range(30):
         env.step(np.tile(down, (2, 1)))
-    saved = env.get_state()
+    saved = env.state_dict()
     later = rng.uniform(-1, 1, size=(20, 2, 4))
     first = [env.step(a) for a in later]
     other = make_batched("pved/Fetch4Peg-v0", 2, reward="full")
-    other.set_state(saved)
+    other.load_state_dict(saved)
     for a, (obs, rew, *_rest) in zip(later, first, strict=True):
         obs2, rew2, *_rest2 = other.step(a)
         np.testing.assert_array_equal(obs, obs2)

@@ -169,11 +169,11 @@ def test_get_state_set_state_continue_exactly() -> None:
     rng = np.random.default_rng(0)
     for a in rng.uniform(-1, 1, size=(8, 2, 8)):
         env.step(a)
-    saved = env.get_state()
+    saved = env.state_dict()
     later = rng.uniform(-1, 1, size=(20, 2, 8))
     first = [env.step(a) for a in later]
     other = make_batched("pved/AntSlope-v0", 2, config=_short("Ant", 15))
-    other.set_state(saved)
+    other.load_state_dict(saved)
     for a, (obs, rew, term, trunc, info) in zip(later, first, strict=True):
         obs2, rew2, term2, trunc2, info2 = other.step(a)
         np.testing.assert_array_equal(obs, obs2)

@@ -182,11 +182,11 @@ def test_get_state_set_state_continue_exactly(eid: str) -> None:
     rng = np.random.default_rng(0)
     for a in rng.uniform(-1, 1, size=(30, 3, 4)):
         env.step(a)
-    saved = env.get_state()
+    saved = env.state_dict()
     later = rng.uniform(-1, 1, size=(130, 3, 4))
     first = [env.step(a) for a in later]
     other = make_batched(eid, 3, reward="full")
-    other.set_state(saved)
+    other.load_state_dict(saved)
     for a, (obs, rew, term, trunc, info) in zip(later, first, strict=True):
         obs2, rew2, term2, trunc2, info2 = other.step(a)
         np.testing.assert_array_equal(obs, obs2)
@@ -196,7 +196,7 @@ def test_get_state_set_state_continue_exactly(eid: str) -> None:
         for key in info:
             np.testing.assert_array_equal(info[key], info2[key], err_msg=key)
     with pytest.raises(PvedError, match="shape"):
-        make_batched(eid, 2).set_state(saved)
+        make_batched(eid, 2).load_state_dict(saved)
 
 
 def test_gym_form_truncates_at_horizon_without_autoreset() -> None:

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import Interrupt, assert_ppo_resumes_exactly, params_of
 from pved.envs.gym_adapter import GymnasiumBatch
 from pved.envs.hopper_v5 import HopperV5Batch
+from pved.envs.registry import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
 from pved.flat import FlatAdam
@@ -41,10 +43,6 @@ TOY = {
 
 def toy_config(**overrides: Any) -> PPOConfig:
     return PPOConfig(**{"total_steps": 4 * 8 * 32, **TOY, **overrides})
-
-
-def params_of(policy: Policy) -> np.ndarray:
-    return torch.cat([p.detach().flatten() for p in policy.net.parameters()]).numpy().copy()
 
 
 # -- GAE ------------------------------------------------------------------------------
@@ -289,31 +287,22 @@ def test_logs_and_evaluates(tmp_path: Path) -> None:
     assert load_policy(run.path / "policy.pt").metadata["training_steps"] == 1024
 
 
-class Interrupt(Exception):
-    pass
-
-
-@pytest.mark.parametrize("env_cls", [PointTarget1D, HopperV5Batch])
-def test_resume_from_checkpoint_is_exact(tmp_path: Path, env_cls: type) -> None:
+@pytest.mark.parametrize(
+    "make_env",
+    [
+        PointTarget1D,
+        HopperV5Batch,
+        # pved's own MuJoCo envs, one of each family: their state goes into the checkpoint
+        lambda n: make_batched("pved/Reacher4Push-v0", n),
+        lambda n: make_batched("pved/Fetch4Peg-v0", n),
+        lambda n: make_batched("pved/AntCurve-v0", n),
+    ],
+    ids=["toy", "hopper-v5", "reacher4-push", "fetch4-peg", "ant-curve"],
+)
+def test_resume_from_checkpoint_is_exact(tmp_path: Path, make_env: Any) -> None:
     n = 8
     cfg = toy_config(total_steps=5 * n * 32, checkpoint_every=2 * n * 32, eval_every=n * 32, seed=2)
-    straight = train_ppo(env_cls(n), cfg, Run(tmp_path / "a", {"c": 1}), progress=False)
-
-    def crash_at_4th_update(policy: Policy, steps: int) -> dict[str, float]:
-        if steps == 4 * n * 32:  # after the checkpoint at update 2, before the one at 4
-            raise Interrupt
-        return {}
-
-    run_b = Run(tmp_path / "b", {"c": 1})
-    with pytest.raises(Interrupt):
-        train_ppo(env_cls(n), cfg, run_b, eval_fn=crash_at_4th_update, progress=False)
-    assert run_b.latest_checkpoint()["global_step"] == 2 * n * 32  # type: ignore[index]
-    resumed = train_ppo(env_cls(n), cfg, Run(tmp_path / "b", {"c": 1}), progress=False)
-    assert np.array_equal(params_of(straight), params_of(resumed))
-    assert np.array_equal(straight.obs_normalizer.rms.mean, resumed.obs_normalizer.rms.mean)
-    # the updates logged after the checkpoint by the interrupted run are not duplicated
-    logged = [r["step"] for r in run_b.read_metrics() if "loss/approx_kl" in r]
-    assert logged == [k * n * 32 for k in range(1, 6)]
+    assert_ppo_resumes_exactly(lambda: make_env(n), cfg, tmp_path)
 
 
 def test_a_run_killed_before_its_first_checkpoint_starts_over_cleanly(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -11,11 +12,14 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 import pved  # noqa: F401  (registers the env ids)
+from helpers import assert_ppo_resumes_exactly
 from pved.envs import make_batched
+from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
 from pved.models import PVED, ModelDims, PVEDConfig
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy
+from pved.rl.ppo import PPOConfig
 from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank, build_source_bank, load_bank, save_bank
 
@@ -87,6 +91,47 @@ def test_shaping_is_minus_beta_times_the_models_kl(shaping: LatentShaping) -> No
         kl = shaping.model.shaping(torch.as_tensor(x_s).float(), torch.as_tensor(x_t).float())
     np.testing.assert_allclose(got, -0.1 * kl.double().numpy(), rtol=1e-6)
     assert np.all(got <= 0.0)
+
+
+def test_shaped_ppo_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
+    # the checkpoint holds the wrapper's bank episodes and steps with the Push env's state;
+    # 5 updates of 32 steps cross the 100-step episodes' boundary, where the bank is drawn
+    cfg = PPOConfig(
+        num_envs=4,
+        steps_per_env=32,
+        minibatch_size=64,
+        epochs=2,
+        hidden_sizes=(32, 32),
+        total_steps=5 * 4 * 32,
+        checkpoint_every=2 * 4 * 32,
+        eval_every=4 * 32,
+        seed=2,
+    )
+
+    def make_env() -> ShapedBatchedEnv:
+        return ShapedBatchedEnv(make_batched(TARGET_PUSH, 4), shaping, MATCH_KEYS)
+
+    assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
+
+
+def test_shaped_env_state_is_none_over_an_env_that_cannot_save(shaping: LatentShaping) -> None:
+    class NoState(BatchedEnv):  # the Push env without its state_dict
+        def __init__(self) -> None:
+            self.inner = make_batched(TARGET_PUSH, 2)
+            for name in ("num_envs", "single_observation_space", "single_action_space"):
+                setattr(self, name, getattr(self.inner, name))
+            self.robot_state_indices = self.inner.robot_state_indices
+            self.max_episode_steps = self.inner.max_episode_steps
+
+        def reset(self, seed: int | None = None, options: dict | None = None) -> Any:
+            return self.inner.reset(seed=seed, options=options)
+
+        def step(self, actions: np.ndarray) -> Any:
+            return self.inner.step(actions)
+
+    env = ShapedBatchedEnv(NoState(), shaping, MATCH_KEYS)
+    env.reset(seed=0)
+    assert env.state_dict() is None
 
 
 def test_batched_and_gymnasium_forms_give_identical_shaped_transitions(

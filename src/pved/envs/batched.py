@@ -328,10 +328,12 @@ class MujocoBatchedEnv(BatchedEnv):
         info.update(self._task_params())
         return obs, reward, terminated, truncated, info
 
-    def get_state(self) -> dict[str, Any]:
-        """Everything a later :meth:`set_state` needs to continue bit-exactly (for PPO
-        checkpoints): MuJoCo's integration state of every copy (warm start included),
-        episode counters, generators and the task's own state."""
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a later :meth:`load_state_dict` needs to continue bit-exactly:
+        MuJoCo's integration state of every copy (warm start included), episode counters,
+        generators and the task's own state. PPO puts it into its checkpoints (the names
+        are the ones ``pved.rl.ppo`` looks for), so a resumed run continues the same
+        episodes."""
         size = mujoco.mj_stateSize(self.model, _STATE_SPEC)
         states = np.zeros((self.num_envs, size))
         for i, data in enumerate(self.datas):
@@ -344,8 +346,8 @@ class MujocoBatchedEnv(BatchedEnv):
             "task": self._get_task_state(),
         }
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        """Restore a :meth:`get_state` of an env built with the same arguments."""
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a :meth:`state_dict` of an env built with the same arguments."""
         size = mujoco.mj_stateSize(self.model, _STATE_SPEC)
         states = np.asarray(state["mj_state"], dtype=np.float64)
         if states.shape != (self.num_envs, size):

@@ -398,7 +398,9 @@ def _env_state_api(env: BatchedEnv) -> tuple[Callable[[], Any], Callable[[Any], 
     A BatchedEnv that can capture everything its future depends on (MuJoCo integration
     state incl. warm start, step counters, per-copy generators) exposes
     ``state_dict() -> dict`` (numpy arrays and plain data) and ``load_state_dict(dict)``;
-    PPO checkpoints then resume bit-exactly. Wrappers should forward both.
+    PPO checkpoints then resume bit-exactly. Wrappers should forward both; a wrapper's
+    ``state_dict()`` returns None when the env it wraps cannot save (the checkpoint then
+    holds no env state, and a resume starts fresh episodes).
     """
     save = getattr(env, "state_dict", None)
     load = getattr(env, "load_state_dict", None)

@@ -135,6 +135,36 @@ class ShapedBatchedEnv(BatchedEnv):
         self._obs = obs
         return obs, env_reward + shaping, terminated, truncated, info
 
+    def state_dict(self) -> dict[str, Any] | None:
+        """The wrapped env's :meth:`state_dict` with this wrapper's own (the last
+        observation, each copy's step and bank episode, the generator that draws bank
+        episodes), so a PPO checkpoint resumes the same shaped episodes; None when the
+        wrapped env cannot save its state (PPO then starts fresh episodes on resume)."""
+        save = getattr(self.env, "state_dict", None)
+        if not callable(save):
+            return None
+        return {
+            "env": save(),
+            "obs": self._obs.copy(),
+            "t": self._t.copy(),
+            "episode": self._episode.copy(),
+            "rng": None if self._rng is None else self._rng.bit_generator.state,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a :meth:`state_dict` of a wrapper built with the same arguments."""
+        self.env.load_state_dict(state["env"])  # type: ignore[attr-defined]
+        t = np.asarray(state["t"], dtype=np.int64)
+        if t.shape != (self.num_envs,):
+            raise PvedError(f"shaped env state is for {t.shape} copies, not {self.num_envs}")
+        self._obs = np.asarray(state["obs"], dtype=np.float64).copy()
+        self._t = t.copy()
+        self._episode = np.asarray(state["episode"], dtype=np.int64).copy()
+        self._rng = None
+        if state["rng"] is not None:
+            self._rng = np.random.default_rng()
+            self._rng.bit_generator.state = state["rng"]
+
     def close(self) -> None:
         self.env.close()
 
