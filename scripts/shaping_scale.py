@@ -82,8 +82,9 @@ def end_distance_against_score(
     runs_root: Path, runs: list[dict[str, Any]], metric: str, beta: float
 ) -> dict[str, Any]:
     """Each evaluation run's D at its last rollout (``-shaping / beta``) beside its final
-    ``metric``, and Spearman's rho between the two over the runs that logged rollouts
-    (None when fewer than three did, or when either column is constant)."""
+    ``metric``, and Spearman's rho between the two over the runs that logged rollouts,
+    with its by-seed interval (:func:`spearman_by_seed`; None when fewer than three runs
+    logged rollouts, or when either column is constant)."""
     points = []
     for run in runs:
         metrics = runs_root / run["key"] / "metrics.jsonl"

@@ -153,10 +153,10 @@ class ShapedBatchedEnv(BatchedEnv):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a :meth:`state_dict` of a wrapper built with the same arguments."""
-        self.env.load_state_dict(state["env"])  # type: ignore[attr-defined]
         t = np.asarray(state["t"], dtype=np.int64)
-        if t.shape != (self.num_envs,):
+        if t.shape != (self.num_envs,):  # checked first: a refused state changes nothing
             raise PvedError(f"shaped env state is for {t.shape} copies, not {self.num_envs}")
+        self.env.load_state_dict(state["env"])  # type: ignore[attr-defined]
         self._obs = np.asarray(state["obs"], dtype=np.float64).copy()
         self._t = t.copy()
         self._episode = np.asarray(state["episode"], dtype=np.int64).copy()
