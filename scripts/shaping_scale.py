@@ -85,7 +85,7 @@ def end_distance_against_score(
     ``metric``, and Spearman's rho between the two over the runs that logged rollouts,
     with its by-seed interval (:func:`spearman_by_seed`; None when fewer than three runs
     logged rollouts, or when either column is constant)."""
-    points = []
+    points, seeds = [], []
     for run in runs:
         metrics = runs_root / run["key"] / "metrics.jsonl"
         score = run.get(metric)
@@ -94,7 +94,7 @@ def end_distance_against_score(
         shaping = read_eval_points(metrics, SHAPING_KEY)[1]
         if len(shaping):
             points.append({"run": run["key"], "d_end": -shaping[-1] / beta, metric: score})
-    seeds = [run["seed"] for run in runs if any(p["run"] == run["key"] for p in points)]
+            seeds.append(run["seed"])
     d_end = np.array([p["d_end"] for p in points])
     scores = np.array([float(p[metric]) for p in points])
     rho, ci = spearman_by_seed(d_end, scores, seeds)
