@@ -114,6 +114,21 @@ def test_shaped_ppo_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> N
     assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
 
 
+def test_shaped_env_refuses_a_state_for_other_copies_and_changes_nothing(
+    shaping: LatentShaping,
+) -> None:
+    # a state saved with 4 copies loaded into 2: one-line error, the inner env untouched
+    four = ShapedBatchedEnv(make_batched(TARGET_PUSH, 4), shaping, MATCH_KEYS)
+    four.reset(seed=0)
+    two = ShapedBatchedEnv(make_batched(TARGET_PUSH, 2), shaping, MATCH_KEYS)
+    two.reset(seed=1)
+    before = two.env.state_dict()  # type: ignore[attr-defined]
+    with pytest.raises(PvedError, match="copies"):
+        two.load_state_dict(four.state_dict())
+    after = two.env.state_dict()  # type: ignore[attr-defined]
+    assert repr(after) == repr(before)
+
+
 def test_shaped_env_state_is_none_over_an_env_that_cannot_save(shaping: LatentShaping) -> None:
     class NoState(BatchedEnv):  # the Push env without its state_dict
         def __init__(self) -> None:
