@@ -43,6 +43,7 @@ from scipy.stats import spearmanr
 
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
 from pved.experiments.stages import default_dataset_path, default_model_path
+from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
 from pved.pairing.dataset import load_dataset
 from pved.runs import atomic_write_json
@@ -58,15 +59,22 @@ def distance_stats(distance: np.ndarray) -> dict[str, float]:
     }
 
 
-@torch.no_grad()
 def shaping_scale(
     model_path: Path, dataset_path: Path, rows: int, seed: int
 ) -> dict[str, dict[str, float]]:
-    """D of Eq. 10 on ``rows`` sampled training pairs, matched and with the target side
-    shuffled: ``{"matched": stats, "shuffled": stats}`` (:func:`distance_stats`)."""
-    dataset = load_dataset(dataset_path)
-    model = load_model(model_path).eval()
-    x_s, x_t = dataset.model_inputs()
+    """D of Eq. 10 on ``rows`` sampled training pairs of the dataset at ``dataset_path``,
+    matched and with the target side shuffled (:func:`matched_and_shuffled`)."""
+    x_s, x_t = load_dataset(dataset_path).model_inputs()
+    return matched_and_shuffled(load_model(model_path).eval(), x_s, x_t, rows, seed)
+
+
+@torch.no_grad()
+def matched_and_shuffled(
+    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, rows: int, seed: int
+) -> dict[str, dict[str, float]]:
+    """D of Eq. 10 on ``rows`` seeded samples of the paired rows x_s (M, D_S), x_t (M, D_T),
+    matched and with the target side shuffled: ``{"matched": stats, "shuffled": stats}``
+    (:func:`distance_stats`)."""
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
     shuffled = rng.permutation(pick)

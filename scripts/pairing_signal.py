@@ -1,0 +1,209 @@
+"""Does a pair's paired dataset relate the two agents, and do its models' shared codes?
+
+Eq. 10's reward can only tell a good target step from a bad one if the model's two
+encoders put a step and its partner near each other and unrelated steps apart. That takes
+two things, and this script measures each for a finished ``pved protocol`` directory:
+
+1. **Signal in the pairing.** How much of one agent's step (robot state and action,
+   standardised) a ridge regression predicts from its paired step of the other agent, as
+   R² on held-out episodes (every tenth episode), and the same with the partner rows
+   shuffled (≈ 0: the floor). Linear, so a lower bound on what the data hold, but the
+   scale that separates pairs: if little of the target is predictable from the source,
+   the cross terms of Eqs. 2 and 6 have little to carry into c.
+2. **What the codes hold.** For each selected Gaussian-c model, the mean KL of each
+   encoder's shared posterior from the N(0, I) prior (nats: how much the code says about
+   its step; near 0 means it sits on the prior whatever the input), and D of Eq. 10 on
+   matched and shuffled training pairs (``scripts/shaping_scale.py``).
+
+``--alpha3 A [A ...]`` refits PVED on the same dataset with the consistency weight α3 of
+Eq. 9 set to each value (the pair's other settings and the selected initialisation kept)
+and measures the refits the same way, to see whether the weight, rather than the data,
+holds the codes apart or on the prior. The refits are written under
+``PROTOCOL_DIR/subspaces/pairing_signal/`` and reused when the script is run again.
+
+    .venv/bin/python scripts/pairing_signal.py reports/humanoid-ant-quick --alpha3 1 0.1
+
+Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from shaping_scale import matched_and_shuffled
+
+from pved.config import get_preset
+from pved.experiments.stages import default_dataset_path, default_model_path
+from pved.models.base import SharedSpaceModel
+from pved.models.distributions import kl_standard_normal
+from pved.models.registry import load_model, save_model
+from pved.models.train import train_model
+from pved.pairing.dataset import load_dataset
+from pved.runs import atomic_write_json
+
+HELD_OUT_EVERY = 10  # every tenth episode is held out of the regression's fit
+RIDGE = 1e-2  # ridge penalty per training row, on standardised inputs
+
+
+def _standardised(x: np.ndarray) -> np.ndarray:
+    """(M, D) with each column at mean 0 and std 1; constant columns left at 0."""
+    std = x.std(0)
+    return (x - x.mean(0)) / np.where(std > 1e-8, std, 1.0)
+
+
+def ridge_r2(x_from: np.ndarray, x_to: np.ndarray, episode: np.ndarray) -> float:
+    """Held-out R² of a ridge regression of x_to (M, D_to) on x_from (M, D_from), both
+    standardised; rows of every ``HELD_OUT_EVERY``-th episode (episode (M,)) are held out.
+    R² is pooled over the output columns that vary on the held-out rows."""
+    a = np.concatenate([_standardised(x_from), np.ones((len(x_from), 1))], 1)
+    b = _standardised(x_to)
+    test = episode % HELD_OUT_EVERY == 0
+    fit = a[~test]
+    weights = np.linalg.solve(fit.T @ fit + RIDGE * len(fit) * np.eye(a.shape[1]), fit.T @ b[~test])
+    residual = ((b[test] - a[test] @ weights) ** 2).sum(0)
+    total = ((b[test] - b[test].mean(0)) ** 2).sum(0)
+    varies = total > 1e-6
+    return float(1.0 - residual[varies].sum() / total[varies].sum())
+
+
+def pairing_r2(
+    x_s: np.ndarray, x_t: np.ndarray, episode: np.ndarray, rows: int, seed: int
+) -> dict[str, float]:
+    """Held-out ridge R² both ways on ``rows`` seeded samples of the paired rows, and
+    source → target with the target rows shuffled."""
+    rng = np.random.default_rng(seed)
+    pick = np.sort(rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False))
+    s, t, e = x_s[pick].astype(np.float64), x_t[pick].astype(np.float64), episode[pick]
+    return {
+        "source_to_target": ridge_r2(s, t, e),
+        "target_to_source": ridge_r2(t, s, e),
+        "source_to_shuffled_target": ridge_r2(s, t[rng.permutation(len(t))], e),
+    }
+
+
+@torch.no_grad()
+def code_information(
+    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, rows: int, seed: int
+) -> dict[str, Any]:
+    """Mean KL (nats) of each encoder's shared posterior from N(0, I) on ``rows`` seeded
+    samples, and D of Eq. 10 matched and shuffled; the KLs are None for a point-code model."""
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
+    out: dict[str, Any] = {}
+    for side, rep in (
+        ("source", model.shared_source(torch.as_tensor(x_s[pick]))),
+        ("target", model.shared_target(torch.as_tensor(x_t[pick]))),
+    ):
+        out[f"kl_prior_{side}"] = (
+            None
+            if rep.logvar is None
+            else float(kl_standard_normal(rep.mean, rep.logvar).double().mean())
+        )
+    return {**out, **matched_and_shuffled(model, x_s, x_t, rows, seed)}
+
+
+def refit_alpha3(
+    pair: str,
+    x_s: np.ndarray,
+    x_t: np.ndarray,
+    state_dims: tuple[int, int],
+    init: int,
+    alpha3: float,
+    out: Path,
+) -> SharedSpaceModel:
+    """PVED on the pair's rows with α3 = ``alpha3``, else the pair's config and seed
+    ``init``; loaded from ``out`` when a previous call wrote it."""
+    if out.is_file():
+        return load_model(out).eval()
+    config = get_preset(pair).model_config("pved", seed=init, alpha3=alpha3)
+    model = train_model("pved", x_s, x_t, config, state_dims=state_dims)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_model(model, out, {"pair": pair, "seed": init, "alpha3": alpha3})
+    return model
+
+
+def _nats(value: float | None) -> str:
+    return "–" if value is None else f"{value:.3g}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
+    parser.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
+    parser.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
+    parser.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    summary_file = args.protocol / "summary.json"
+    if not summary_file.is_file():
+        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
+    summary = json.loads(summary_file.read_text())
+    runs_root = args.protocol / "runs"
+    result: dict[str, Any] = {"rows": args.rows, "code_rows": args.code_rows, "pairs": {}}
+    pairing_rows, code_rows = [], []
+    for pair, entry in summary["pairs"].items():
+        dataset_path = default_dataset_path(pair, runs_root)
+        if not dataset_path.is_file():
+            sys.exit(f"{dataset_path}: the pair's paired dataset is not in this directory")
+        dataset = load_dataset(dataset_path)
+        x_s, x_t = dataset.model_inputs()
+        r2 = pairing_r2(x_s, x_t, dataset.episode, args.rows, args.seed)
+        pair_result: dict[str, Any] = {"pairing_r2": r2, "models": {}}
+        pairing_rows.append(
+            f"| {pair} | {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
+            f"{r2['source_to_shuffled_target']:.3f} |"
+        )
+        models: list[tuple[str, SharedSpaceModel]] = []
+        for method, state in entry["methods"].items():
+            init = state.get("init")
+            if init is None:  # plain PPO and the oracle have no model
+                continue
+            path = default_model_path(pair, method, runs_root, seed=init)
+            if not path.is_file():
+                sys.exit(f"{path}: the selected model is not in this directory")
+            models.append((f"{method} (init {init})", load_model(path).eval()))
+        pved_init = entry["methods"].get("pved", {}).get("init")
+        for alpha3 in args.alpha3:
+            if pved_init is None:
+                sys.exit(f"{args.protocol}: no selected pved model on {pair} to refit")
+            out = args.protocol / "subspaces" / "pairing_signal" / pair / f"pved-alpha3-{alpha3:g}"
+            model = refit_alpha3(
+                pair, x_s, x_t, dataset.state_dims, pved_init, alpha3, out / "model.pt"
+            )
+            models.append((f"pved, α3 = {alpha3:g} (init {pved_init})", model))
+        for name, model in models:
+            info = code_information(model, x_s, x_t, args.code_rows, args.seed)
+            pair_result["models"][name] = info
+            m, s = info["matched"], info["shuffled"]
+            code_rows.append(
+                f"| {pair} | {name} | {_nats(info['kl_prior_source'])} | "
+                f"{_nats(info['kl_prior_target'])} | {m['q50']:.3g} / {m['mean']:.3g} | "
+                f"{s['q50']:.3g} / {s['mean']:.3g} |"
+            )
+        result["pairs"][pair] = pair_result
+    print("| pair | R² source → target | target → source | source → shuffled target |")
+    print("|---|---|---|---|")
+    print("\n".join(pairing_rows))
+    print()
+    print(
+        "| pair | model | KL(c ‖ prior), source encoder | target encoder "
+        "| D matched: median / mean | D shuffled: median / mean |"
+    )
+    print("|---|---|---|---|---|---|")
+    print("\n".join(code_rows))
+    out_json = args.protocol / "subspaces" / "pairing_signal.json"
+    out_json.parent.mkdir(exist_ok=True)
+    atomic_write_json(out_json, result)
+    print(out_json)
+
+
+if __name__ == "__main__":
+    main()
