@@ -29,6 +29,7 @@ Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -38,7 +39,6 @@ import numpy as np
 import torch
 from shaping_scale import matched_and_shuffled
 
-from pved.config import get_preset
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
@@ -109,22 +109,21 @@ def code_information(
 
 
 def refit_alpha3(
-    pair: str,
+    selected: SharedSpaceModel,
     x_s: np.ndarray,
     x_t: np.ndarray,
     state_dims: tuple[int, int],
-    init: int,
     alpha3: float,
     out: Path,
 ) -> SharedSpaceModel:
-    """PVED on the pair's rows with α3 = ``alpha3``, else the pair's config and seed
-    ``init``; loaded from ``out`` when a previous call wrote it."""
+    """The ``selected`` PVED model refitted on the same rows with only α3 changed (its
+    config, seed and epochs kept); loaded from ``out`` when a previous call wrote it."""
     if out.is_file():
         return load_model(out).eval()
-    config = get_preset(pair).model_config("pved", seed=init, alpha3=alpha3)
+    config = dataclasses.replace(selected.config, alpha3=alpha3)  # type: ignore[call-arg]
     model = train_model("pved", x_s, x_t, config, state_dims=state_dims)
     out.parent.mkdir(parents=True, exist_ok=True)
-    save_model(model, out, {"pair": pair, "seed": init, "alpha3": alpha3})
+    save_model(model, out, {**selected.metadata, "alpha3": alpha3})
     return model
 
 
@@ -161,7 +160,7 @@ def main() -> None:
             f"| {pair} | {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
             f"{r2['source_to_shuffled_target']:.3f} |"
         )
-        models: list[tuple[str, SharedSpaceModel]] = []
+        models: dict[str, SharedSpaceModel] = {}
         for method, state in entry["methods"].items():
             init = state.get("init")
             if init is None:  # plain PPO and the oracle have no model
@@ -169,17 +168,17 @@ def main() -> None:
             path = default_model_path(pair, method, runs_root, seed=init)
             if not path.is_file():
                 sys.exit(f"{path}: the selected model is not in this directory")
-            models.append((f"{method} (init {init})", load_model(path).eval()))
-        pved_init = entry["methods"].get("pved", {}).get("init")
+            models[f"{method} (init {init})"] = load_model(path).eval()
+        pved_name = f"pved (init {entry['methods'].get('pved', {}).get('init')})"
         for alpha3 in args.alpha3:
-            if pved_init is None:
+            if pved_name not in models:
                 sys.exit(f"{args.protocol}: no selected pved model on {pair} to refit")
+            selected_pved = models[pved_name]
             out = args.protocol / "subspaces" / "pairing_signal" / pair / f"pved-alpha3-{alpha3:g}"
-            model = refit_alpha3(
-                pair, x_s, x_t, dataset.state_dims, pved_init, alpha3, out / "model.pt"
+            models[f"{pved_name}, α3 = {alpha3:g}"] = refit_alpha3(
+                selected_pved, x_s, x_t, dataset.state_dims, alpha3, out / "model.pt"
             )
-            models.append((f"pved, α3 = {alpha3:g} (init {pved_init})", model))
-        for name, model in models:
+        for name, model in models.items():
             info = code_information(model, x_s, x_t, args.code_rows, args.seed)
             pair_result["models"][name] = info
             m, s = info["matched"], info["shuffled"]

@@ -674,6 +674,38 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         lo, hi = ends["spearman_rho_ci"]
         assert -1 <= lo <= hi <= 1
 
+    # does the pairing relate the agents, and do the codes: refitting the selected PVED
+    # at its own alpha3 must give back the very same model
+    alpha3 = json.loads(
+        (out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "config.json").read_text()
+    )["config"]["model_config"]["alpha3"]
+    measured = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "pairing_signal.py"),
+            str(out),
+            "--rows",
+            "2000",
+            "--code-rows",
+            "500",
+            "--alpha3",
+            f"{alpha3:g}",
+            "0",
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert measured.returncode == 0, measured.stderr[-3000:]
+    pairing = json.loads((out / "subspaces" / "pairing_signal.json").read_text())["pairs"]
+    r2 = pairing["reacher"]["pairing_r2"]
+    assert abs(r2["source_to_shuffled_target"]) < 0.05 < r2["source_to_target"] < 1
+    codes = pairing["reacher"]["models"]
+    selected = codes[f"pved (init {init})"]
+    assert codes[f"pved (init {init}), α3 = {alpha3:g}"] == selected
+    assert selected["matched"] == scale["matched"]  # the same rows as shaping_scale's
+    assert codes[f"pved (init {init}), α3 = 0"] != selected
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
@@ -716,6 +748,24 @@ def _script(name: str) -> Any:
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episodes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import numpy as np
+
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # it imports shaping_scale
+    ridge_r2 = _script("pairing_signal").ridge_r2
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(20_000, 3))
+    episode = np.repeat(np.arange(200), 100)
+    # y0 = x0 + noise of the same variance: half of it predictable; y1 constant, ignored
+    y = np.stack([x[:, 0] + rng.normal(size=len(x)), np.full(len(x), 3.0)], 1)
+    assert ridge_r2(x, y, episode) == pytest.approx(0.5, abs=0.03)
+    assert ridge_r2(x, x[:, :2] @ np.array([[1.0, 2.0], [-1.0, 0.5]]), episode) > 0.97
+    # unrelated rows: nothing to predict, and the fit on the other episodes does not leak
+    assert abs(ridge_r2(x, rng.normal(size=(len(x), 2)), episode)) < 0.03
 
 
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
