@@ -44,11 +44,13 @@ restore: $(STAMP)
 		--protocol reports/$(PAIR)-$(BUDGET)
 
 # "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
-# PVED's best evaluation run, and the scale of Eq. 10's distance on the training pairs
-# (scripts/shaping_scale.py), into reports/<pair>-<budget>/subspaces/
+# PVED's best evaluation run, the scale of Eq. 10's distance on the training pairs
+# (scripts/shaping_scale.py) and how much the pairing and the models' shared codes relate
+# the two agents (scripts/pairing_signal.py), into reports/<pair>-<budget>/subspaces/
 subspaces: $(STAMP)
 	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
 	$(PY) scripts/shaping_scale.py reports/$(PAIR)-$(BUDGET)
+	$(PY) scripts/pairing_signal.py reports/$(PAIR)-$(BUDGET)
 
 # Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
 # where they are committed, then judge the paper's claims on every finished pair (one
@@ -68,6 +70,7 @@ publish:
 		cp reports/$(PAIR)-$(BUDGET)/subspaces/tsne/* reports/$(PAIR)-$(BUDGET)/subspaces/bound.txt \
 			reports/$(PAIR)-$(BUDGET)/subspaces/chosen.json \
 			reports/$(PAIR)-$(BUDGET)/subspaces/shaping_scale.json \
+			reports/$(PAIR)-$(BUDGET)/subspaces/pairing_signal.json \
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 
