@@ -117,10 +117,14 @@ def refit_alpha3(
     out: Path,
 ) -> SharedSpaceModel:
     """The ``selected`` PVED model refitted on the same rows with only α3 changed (its
-    config, seed and epochs kept); loaded from ``out`` when a previous call wrote it."""
-    if out.is_file():
-        return load_model(out).eval()
+    config, seed and epochs kept); loaded from ``out`` when a previous call wrote it from
+    the same model and dataset (a protocol that reselected since is refitted anew)."""
     config = dataclasses.replace(selected.config, alpha3=alpha3)  # type: ignore[call-arg]
+    if out.is_file():
+        earlier = load_model(out).eval()
+        same_data = earlier.metadata.get("dataset") == selected.metadata.get("dataset")
+        if earlier.config == config and same_data:
+            return earlier
     model = train_model("pved", x_s, x_t, config, state_dims=state_dims)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, out, {**selected.metadata, "alpha3": alpha3})
