@@ -23,7 +23,9 @@ holds the codes apart or on the prior. The refits are written under
 
     .venv/bin/python scripts/pairing_signal.py reports/humanoid-ant-quick --alpha3 1 0.1
 
-Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``.
+Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``. With
+``--datasets A.npz B.npz [--first-episodes N]`` instead, it prints only the first
+measure for each dataset (e.g. the same episodes under two alignments) and writes nothing.
 """
 
 from __future__ import annotations
@@ -131,19 +133,55 @@ def refit_alpha3(
     return model
 
 
+def compare_datasets(paths: list[Path], first_episodes: int | None, rows: int, seed: int) -> None:
+    """Print the pairing's R² (:func:`pairing_r2`) of each paired dataset, e.g. the same
+    episodes collected under two alignments, restricted to its first episodes if given."""
+    print("| dataset | alignment | rows | R² source → target | target → source | shuffled |")
+    print("|---|---|---|---|---|---|")
+    for path in paths:
+        dataset = load_dataset(path)
+        x_s, x_t = dataset.model_inputs()
+        keep = np.ones(len(x_s), bool)
+        if first_episodes is not None:
+            keep = dataset.episode < first_episodes
+        r2 = pairing_r2(x_s[keep], x_t[keep], dataset.episode[keep], rows, seed)
+        print(
+            f"| {path} | {dataset.header.get('alignment')} | {int(keep.sum())} | "
+            f"{r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
+            f"{r2['source_to_shuffled_target']:.3f} |"
+        )
+
+
 def _nats(value: float | None) -> str:
     return "–" if value is None else f"{value:.3g}"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
+    parser.add_argument(
+        "protocol", type=Path, nargs="?", help="a finished `pved protocol` output directory"
+    )
+    parser.add_argument(
+        "--datasets",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="instead of a protocol: only the pairing's R², of each of these paired datasets",
+    )
+    parser.add_argument(
+        "--first-episodes", type=int, help="with --datasets: only episodes 0..N-1 of each"
+    )
     parser.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
     parser.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
     parser.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.datasets:
+        compare_datasets(args.datasets, args.first_episodes, args.rows, args.seed)
+        return
+    if args.protocol is None:
+        parser.error("give a protocol directory or --datasets")
 
     summary_file = args.protocol / "summary.json"
     if not summary_file.is_file():

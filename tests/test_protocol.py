@@ -705,6 +705,22 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert codes[f"pved (init {init}), α3 = {alpha3:g}"] == selected
     assert selected["matched"] == scale["matched"]  # the same rows as shaping_scale's
     assert codes[f"pved (init {init}), α3 = 0"] != selected
+    # the same measure of a dataset on its own (e.g. one collected under another alignment)
+    alone = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "scripts" / "pairing_signal.py"),
+            "--datasets",
+            str(next((out / "runs" / "reacher" / "pairs").glob("*/seed0/pairs.npz"))),
+            "--rows",
+            "2000",
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+    )
+    assert alone.returncode == 0, alone.stderr[-3000:]
+    assert f"| {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} |" in alone.stdout
 
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
