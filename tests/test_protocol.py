@@ -624,18 +624,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert report.count('src="data:image/gif;base64,') == 2
 
     # "what the subspaces learned" of PVED's best evaluation run (`make subspaces`)
-    sub = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "scripts" / "subspaces_report.py"),
-            str(out),
-            "--episodes",
-            "2",
-        ],
-        env=_env(),
-        capture_output=True,
-        text=True,
-    )
+    sub = _run_script("subspaces_report", str(out), "--episodes", "2")
     assert sub.returncode == 0, sub.stderr[-3000:]
     chosen = json.loads((out / "subspaces" / "chosen.json").read_text())
     pved_runs = methods["pved"]["runs"]
@@ -648,12 +637,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert "Theorem 1" in (out / "subspaces" / "report.html").read_text()
 
     # the scale of Eq. 10's distance on the training pairs, matched and shuffled
-    scaled = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "shaping_scale.py"), str(out), "--rows", "500"],
-        env=_env(),
-        capture_output=True,
-        text=True,
-    )
+    scaled = _run_script("shaping_scale", str(out), "--rows", "500")
     assert scaled.returncode == 0, scaled.stderr[-3000:]
     scales = json.loads((out / "subspaces" / "shaping_scale.json").read_text())["pairs"]
     assert set(scales["reacher"]) == {"pved"}  # plain PPO has no model
@@ -679,22 +663,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     alpha3 = json.loads(
         (out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "config.json").read_text()
     )["config"]["model_config"]["alpha3"]
-    measured = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "scripts" / "pairing_signal.py"),
-            str(out),
-            "--rows",
-            "2000",
-            "--code-rows",
-            "500",
-            "--alpha3",
-            f"{alpha3:g}",
-            "0",
-        ],
-        env=_env(),
-        capture_output=True,
-        text=True,
+    measured = _run_script(
+        "pairing_signal",
+        str(out),
+        *("--rows", "2000", "--code-rows", "500", "--alpha3", f"{alpha3:g}", "0"),
     )
     assert measured.returncode == 0, measured.stderr[-3000:]
     pairing = json.loads((out / "subspaces" / "pairing_signal.json").read_text())["pairs"]
@@ -706,18 +678,11 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert selected["matched"] == scale["matched"]  # the same rows as shaping_scale's
     assert codes[f"pved (init {init}), α3 = 0"] != selected
     # the same measure of a dataset on its own (e.g. one collected under another alignment)
-    alone = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "scripts" / "pairing_signal.py"),
-            "--datasets",
-            str(next((out / "runs" / "reacher" / "pairs").glob("*/seed0/pairs.npz"))),
-            "--rows",
-            "2000",
-        ],
-        env=_env(),
-        capture_output=True,
-        text=True,
+    alone = _run_script(
+        "pairing_signal",
+        "--datasets",
+        str(next((out / "runs" / "reacher" / "pairs").glob("*/seed0/pairs.npz"))),
+        *("--rows", "2000"),
     )
     assert alone.returncode == 0, alone.stderr[-3000:]
     assert f"| {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} |" in alone.stdout
@@ -753,6 +718,14 @@ def test_protocol_bad_input_is_one_line(tmp_path: Path, args: list[str], message
 def test_plot_of_a_directory_that_is_no_protocol(tmp_path: Path) -> None:
     res = subprocess.run([*PVED, "plot", str(tmp_path)], env=_env(), capture_output=True, text=True)
     assert res.returncode == 2 and "not a protocol directory" in res.stderr
+
+
+def _run_script(name: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``scripts/<name>.py`` with ``args`` as a user would, output captured."""
+    script = str(ROOT / "scripts" / f"{name}.py")
+    return subprocess.run(
+        [sys.executable, script, *args], env=_env(), capture_output=True, text=True
+    )
 
 
 def _script(name: str) -> Any:
