@@ -13,7 +13,11 @@ two things, and this script measures each for a finished ``pved protocol`` direc
 2. **What the codes hold.** For each selected Gaussian-c model, the mean KL of each
    encoder's shared posterior from the N(0, I) prior (nats: how much the code says about
    its step; near 0 means it sits on the prior whatever the input), and D of Eq. 10 on
-   matched and shuffled training pairs (``scripts/shaping_scale.py``).
+   matched and shuffled training pairs (``scripts/shaping_scale.py``). Where the protocol
+   kept its first source bank (the source's steps on the target task, which the transfer
+   runs' Eq. 10 term draws from), the same KL for the bank's steps and D between a bank
+   step and an unrelated training target step: how far the target task takes the source's
+   codes from the pairs the model was trained on.
 
 ``--alpha3 A [A ...]`` refits PVED on the same dataset with the consistency weight α3 of
 Eq. 9 set to each value (the pair's other settings and the selected initialisation kept)
@@ -25,7 +29,8 @@ holds the codes apart or on the prior. The refits are written under
 
 Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``. With
 ``--datasets A.npz B.npz [--first-episodes N]`` instead, it prints only the first
-measure for each dataset (e.g. the same episodes under two alignments) and writes nothing.
+measure for each dataset (e.g. the same episodes under two alignments) and writes
+nothing; ``--model M.pt [--bank B.npz]`` adds the second for one model on each dataset.
 """
 
 from __future__ import annotations
@@ -39,15 +44,17 @@ from typing import Any
 
 import numpy as np
 import torch
-from shaping_scale import matched_and_shuffled
+from shaping_scale import distance_stats, matched_and_shuffled
 
+from pved.config import get_preset
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model
 from pved.models.train import train_model
 from pved.pairing.dataset import load_dataset
-from pved.runs import atomic_write_json
+from pved.runs import atomic_write_json, run_path
+from pved.transfer.source_bank import load_bank
 
 HELD_OUT_EVERY = 10  # every tenth episode is held out of the regression's fit
 RIDGE = 1e-2  # ridge penalty per training row, on standardised inputs
@@ -91,23 +98,47 @@ def pairing_r2(
 
 @torch.no_grad()
 def code_information(
-    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, rows: int, seed: int
+    model: SharedSpaceModel,
+    x_s: np.ndarray,
+    x_t: np.ndarray,
+    rows: int,
+    seed: int,
+    bank: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Mean KL (nats) of each encoder's shared posterior from N(0, I) on ``rows`` seeded
-    samples, and D of Eq. 10 matched and shuffled; the KLs are None for a point-code model."""
+    samples, and D of Eq. 10 matched and shuffled; the KLs are None for a point-code model.
+
+    With ``bank`` (N, D_S), the source's steps on the target task that the transfer runs
+    draw from: the same KL for its steps, and D between a bank step and an unrelated
+    training target step (``"bank_vs_target"``), to tell whether the target task takes
+    the source's codes away from what the model was trained on."""
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
+    sides = [("source", x_s[pick]), ("target", x_t[pick])]
+    if bank is not None:
+        bank = bank[rng.choice(len(bank), size=min(rows, len(bank)), replace=False)]
+        sides.append(("bank", bank))
     out: dict[str, Any] = {}
-    for side, rep in (
-        ("source", model.shared_source(torch.as_tensor(x_s[pick]))),
-        ("target", model.shared_target(torch.as_tensor(x_t[pick]))),
-    ):
+    for side, x in sides:
+        encode = model.shared_target if side == "target" else model.shared_source
+        rep = encode(torch.as_tensor(x))
         out[f"kl_prior_{side}"] = (
             None
             if rep.logvar is None
             else float(kl_standard_normal(rep.mean, rep.logvar).double().mean())
         )
-    return {**out, **matched_and_shuffled(model, x_s, x_t, rows, seed)}
+    out.update(matched_and_shuffled(model, x_s, x_t, rows, seed))
+    if bank is not None:
+        target = torch.as_tensor(x_t[rng.choice(len(x_t), size=len(bank), replace=False)])
+        distance = model.shaping(torch.as_tensor(bank), target).double().numpy()
+        out["bank_vs_target"] = distance_stats(distance)
+    return out
+
+
+def bank_rows(path: Path) -> np.ndarray:
+    """Every step (N, D_S) of a source bank's episodes, robot state then action."""
+    bank = load_bank(path)
+    return np.concatenate([bank.x[e, :length] for e, length in enumerate(bank.lengths)])
 
 
 def refit_alpha3(
@@ -133,11 +164,24 @@ def refit_alpha3(
     return model
 
 
-def compare_datasets(paths: list[Path], first_episodes: int | None, rows: int, seed: int) -> None:
+def compare_datasets(
+    paths: list[Path],
+    first_episodes: int | None,
+    rows: int,
+    code_rows_wanted: int,
+    seed: int,
+    model_path: Path | None = None,
+    bank_path: Path | None = None,
+) -> None:
     """Print the pairing's R² (:func:`pairing_r2`) of each paired dataset, e.g. the same
-    episodes collected under two alignments, restricted to its first episodes if given."""
+    episodes collected under two alignments, restricted to its first episodes if given;
+    with ``model_path``, also that model's :func:`code_information` on each dataset (and
+    on the source bank at ``bank_path``, if given)."""
     print("| dataset | alignment | rows | R² source → target | target → source | shuffled |")
     print("|---|---|---|---|---|---|")
+    code_rows = []
+    model = None if model_path is None else load_model(model_path).eval()
+    bank = None if bank_path is None else bank_rows(bank_path).astype(np.float32)
     for path in paths:
         dataset = load_dataset(path)
         x_s, x_t = dataset.model_inputs()
@@ -150,10 +194,36 @@ def compare_datasets(paths: list[Path], first_episodes: int | None, rows: int, s
             f"{r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
             f"{r2['source_to_shuffled_target']:.3f} |"
         )
+        if model is not None:
+            info = code_information(model, x_s[keep], x_t[keep], code_rows_wanted, seed, bank)
+            code_rows.append(_code_row(str(path), str(model_path), info))
+    if code_rows:
+        print()
+        print(CODE_HEADER.format(what="dataset"))
+        print("\n".join(code_rows))
+
+
+CODE_HEADER = (
+    "| {what} | model | KL(c ‖ prior), source encoder | target encoder "
+    "| D matched: median / mean | D shuffled: median / mean "
+    "| KL(c ‖ prior), source bank on the target task | D bank vs target: median / mean |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
 
 
 def _nats(value: float | None) -> str:
     return "–" if value is None else f"{value:.3g}"
+
+
+def _code_row(where: str, name: str, info: dict[str, Any]) -> str:
+    """One row of :data:`CODE_HEADER`'s table from :func:`code_information`'s result."""
+    m, s, on_bank = info["matched"], info["shuffled"], info.get("bank_vs_target")
+    bank_d = "–" if on_bank is None else f"{on_bank['q50']:.3g} / {on_bank['mean']:.3g}"
+    return (
+        f"| {where} | {name} | {_nats(info['kl_prior_source'])} | "
+        f"{_nats(info['kl_prior_target'])} | {m['q50']:.3g} / {m['mean']:.3g} | "
+        f"{s['q50']:.3g} / {s['mean']:.3g} | {_nats(info.get('kl_prior_bank'))} | {bank_d} |"
+    )
 
 
 def main() -> None:
@@ -171,6 +241,12 @@ def main() -> None:
     parser.add_argument(
         "--first-episodes", type=int, help="with --datasets: only episodes 0..N-1 of each"
     )
+    parser.add_argument(
+        "--model", type=Path, help="with --datasets: also this model's codes on each dataset"
+    )
+    parser.add_argument(
+        "--bank", type=Path, help="with --model: the source bank on the target task"
+    )
     parser.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
     parser.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
     parser.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
@@ -178,7 +254,15 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.datasets:
-        compare_datasets(args.datasets, args.first_episodes, args.rows, args.seed)
+        compare_datasets(
+            args.datasets,
+            args.first_episodes,
+            args.rows,
+            args.code_rows,
+            args.seed,
+            args.model,
+            args.bank,
+        )
         return
     if args.protocol is None:
         parser.error("give a protocol directory or --datasets")
@@ -220,25 +304,20 @@ def main() -> None:
             models[f"{pved_name}, α3 = {alpha3:g}"] = refit_alpha3(
                 selected_pved, x_s, x_t, dataset.state_dims, alpha3, out / "model.pt"
             )
+        preset = get_preset(pair)
+        bank_name = f"{preset.source_agent}-{preset.target_task}"
+        bank_path = run_path(runs_root, pair, "bank", bank_name, 0) / "bank.npz"
+        bank = bank_rows(bank_path).astype(np.float32) if bank_path.is_file() else None
         for name, model in models.items():
-            info = code_information(model, x_s, x_t, args.code_rows, args.seed)
+            info = code_information(model, x_s, x_t, args.code_rows, args.seed, bank)
             pair_result["models"][name] = info
-            m, s = info["matched"], info["shuffled"]
-            code_rows.append(
-                f"| {pair} | {name} | {_nats(info['kl_prior_source'])} | "
-                f"{_nats(info['kl_prior_target'])} | {m['q50']:.3g} / {m['mean']:.3g} | "
-                f"{s['q50']:.3g} / {s['mean']:.3g} |"
-            )
+            code_rows.append(_code_row(pair, name, info))
         result["pairs"][pair] = pair_result
     print("| pair | R² source → target | target → source | source → shuffled target |")
     print("|---|---|---|---|")
     print("\n".join(pairing_rows))
     print()
-    print(
-        "| pair | model | KL(c ‖ prior), source encoder | target encoder "
-        "| D matched: median / mean | D shuffled: median / mean |"
-    )
-    print("|---|---|---|---|---|---|")
+    print(CODE_HEADER.format(what="pair"))
     print("\n".join(code_rows))
     out_json = args.protocol / "subspaces" / "pairing_signal.json"
     out_json.parent.mkdir(exist_ok=True)

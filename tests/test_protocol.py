@@ -677,15 +677,20 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert codes[f"pved (init {init}), α3 = {alpha3:g}"] == selected
     assert selected["matched"] == scale["matched"]  # the same rows as shaping_scale's
     assert codes[f"pved (init {init}), α3 = 0"] != selected
-    # the same measure of a dataset on its own (e.g. one collected under another alignment)
+    # the source bank on the target task, which the transfer runs draw their term from
+    assert selected["kl_prior_bank"] > 0 and selected["bank_vs_target"]["q50"] >= 0
+    # the same measures of a dataset and a model on their own (e.g. another alignment's)
+    model_path = out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "model.pt"
     alone = _run_script(
         "pairing_signal",
         "--datasets",
         str(next((out / "runs" / "reacher" / "pairs").glob("*/seed0/pairs.npz"))),
-        *("--rows", "2000"),
+        *("--rows", "2000", "--code-rows", "500", "--model", str(model_path)),
     )
     assert alone.returncode == 0, alone.stderr[-3000:]
     assert f"| {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} |" in alone.stdout
+    matched = selected["matched"]
+    assert f"| {matched['q50']:.3g} / {matched['mean']:.3g} |" in alone.stdout
 
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
