@@ -20,8 +20,8 @@ two things, and this script measures each for a finished ``pved protocol`` direc
    codes from the pairs the model was trained on.
 
 ``--alpha3 A [A ...]`` refits PVED on the same dataset with the consistency weight α3 of
-Eq. 9 set to each value (the pair's other settings and the selected initialisation kept)
-and measures the refits the same way, to see whether the weight, rather than the data,
+Eq. 9 set to each value (the selected model's config, seed and epochs otherwise) and
+measures the refits the same way, to see whether the weight, rather than the data,
 holds the codes apart or on the prior. The refits are written under
 ``PROTOCOL_DIR/subspaces/pairing_signal/`` and reused when the script is run again.
 
@@ -47,6 +47,7 @@ import torch
 from shaping_scale import distance_stats, matched_and_shuffled
 
 from pved.config import get_preset
+from pved.errors import PvedError
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
@@ -177,9 +178,7 @@ def compare_datasets(
     episodes collected under two alignments, restricted to its first episodes if given;
     with ``model_path``, also that model's :func:`code_information` on each dataset (and
     on the source bank at ``bank_path``, if given)."""
-    print("| dataset | alignment | rows | R² source → target | target → source | shuffled |")
-    print("|---|---|---|---|---|---|")
-    code_rows = []
+    r2_rows, code_rows = [], []
     model = None if model_path is None else load_model(model_path).eval()
     bank = None if bank_path is None else bank_rows(bank_path).astype(np.float32)
     for path in paths:
@@ -189,7 +188,7 @@ def compare_datasets(
         if first_episodes is not None:
             keep = dataset.episode < first_episodes
         r2 = pairing_r2(x_s[keep], x_t[keep], dataset.episode[keep], rows, seed)
-        print(
+        r2_rows.append(
             f"| {path} | {dataset.header.get('alignment')} | {int(keep.sum())} | "
             f"{r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
             f"{r2['source_to_shuffled_target']:.3f} |"
@@ -197,6 +196,10 @@ def compare_datasets(
         if model is not None:
             info = code_information(model, x_s[keep], x_t[keep], code_rows_wanted, seed, bank)
             code_rows.append(_code_row(str(path), str(model_path), info))
+    # printed once every input has been read, so a bad one leaves no half table
+    print("| dataset | alignment | rows | R² source → target | target → source | shuffled |")
+    print("|---|---|---|---|---|---|")
+    print("\n".join(r2_rows))
     if code_rows:
         print()
         print(CODE_HEADER.format(what="dataset"))
@@ -253,6 +256,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if not args.datasets and (args.model or args.bank or args.first_episodes is not None):
+        parser.error("--model, --bank and --first-episodes go with --datasets")
+    if args.bank and not args.model:
+        parser.error("--bank needs --model")
+    try:
+        run(args, parser)
+    except PvedError as exc:  # a foreign or corrupt dataset, model or bank: one line
+        sys.exit(f"pairing_signal: {exc}")
+
+
+def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """The measurements :func:`main` parsed the arguments for."""
     if args.datasets:
         compare_datasets(
             args.datasets,

@@ -762,6 +762,16 @@ def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episode
     assert abs(ridge_r2(x, rng.normal(size=(len(x), 2)), episode)) < 0.03
 
 
+def test_pairing_signal_refuses_a_corrupt_dataset_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "pairs.npz"
+    bad.write_bytes(b"not a dataset")
+    res = _run_script("pairing_signal", "--datasets", str(bad))
+    assert res.returncode == 1 and res.stdout == ""  # no half-printed table
+    assert res.stderr.strip().count("\n") == 0 and "corrupt" in res.stderr
+    usage = _run_script("pairing_signal", "--model", str(bad))  # --model needs --datasets
+    assert usage.returncode == 2 and "--datasets" in usage.stderr
+
+
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
     import numpy as np
 
