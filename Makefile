@@ -18,13 +18,16 @@ demo: $(STAMP)
 	$(VENV)/bin/pved demo
 
 # The paper's protocol on one pair with every method: make reproduce PAIR=reacher BUDGET=quick
-# (WORKERS=1 leaves the other cores free; rerunning the same command resumes)
+# (WORKERS=1 leaves the other cores free; rerunning the same command resumes;
+# FROM=quick first copies the finished policies, pairs, models and banks of
+# reports/<pair>-quick, which a paper-budget protocol would otherwise make again)
 PAIR    ?= reacher
 BUDGET  ?= quick
 METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2017 ppo oracle
 reproduce: $(STAMP)
 	$(VENV)/bin/pved protocol --pair $(PAIR) --budget $(BUDGET) --methods $(METHODS) \
-		--out reports/$(PAIR)-$(BUDGET) $(if $(WORKERS),--workers $(WORKERS))
+		--out reports/$(PAIR)-$(BUDGET) $(if $(WORKERS),--workers $(WORKERS)) \
+		$(if $(FROM),--stages-from reports/$(PAIR)-$(FROM))
 
 # A protocol outlives the machine it runs on: `make archive` copies its finished runs,
 # slimmed (results, configs, curves, models; no checkpoints, datasets or banks), into

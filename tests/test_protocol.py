@@ -17,7 +17,7 @@ import pytest
 
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
-from pved.experiments.protocol import ProtocolPlan
+from pved.experiments.protocol import COPYABLE_STAGES, ProtocolPlan, copy_stage_runs
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -692,6 +692,32 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     matched = selected["matched"]
     assert f"| {matched['q50']:.3g} / {matched['mean']:.3g} |" in alone.stdout
 
+    # another budget's protocol of the pair may start from this one's earlier stages
+    # (`--stages-from`): the plan's own stage functions take the copies as done
+    later = tmp_path / "later"
+    made = [
+        run.parent
+        for stage in COPYABLE_STAGES
+        for run in (out / "runs" / "reacher" / stage).glob("*/seed*/result.json")
+    ]
+    assert copy_stage_runs(out, later, ["reacher"]) == len(made) > 0
+    assert copy_stage_runs(out, later, ["reacher"]) == 0  # nothing is copied twice
+    assert not (later / "runs" / "reacher" / "transfer").exists()
+    stage_jobs = [
+        job
+        for job in ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", later).expand({})
+        if "/transfer/" not in job.key
+    ]
+    assert {job.run_dir for job in stage_jobs} <= {
+        later / "runs" / r.relative_to(out / "runs") for r in made
+    }
+    for job in stage_jobs:
+        assert job.run_dir is not None
+        result = job.run_dir / "result.json"
+        written = result.stat().st_mtime_ns
+        job.fn(**job.kwargs)
+        assert result.stat().st_mtime_ns == written, job.key  # not made again
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
@@ -705,6 +731,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         (["--pair", "nope"], "unknown pair"),
         (["--pair", "reacher", "--methods", "pved", "magic"], "unknown model"),
         (["--pair", "reacher", "--budget", "huge"], "unknown budget"),
+        (["--pair", "reacher", "--stages-from", "nowhere"], "not a protocol directory"),
     ],
 )
 def test_protocol_bad_input_is_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -183,6 +183,7 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
         workers=args.workers,
         retries=args.retries,
         backend=args.backend,
+        stages_from=args.stages_from,
     )
     failed = len(summary["failed"]) + len(summary["blocked"])
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
@@ -494,6 +495,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="ray, or processes: a local pool for machines without Ray; default auto: "
         "ray where it is installed",
+    )
+    p.add_argument(
+        "--stages-from",
+        type=Path,
+        help="another protocol directory (e.g. the pair's quick one) whose finished "
+        "policies, pairs, models and banks are copied in first; one whose config differs "
+        "from this plan's is redone",
     )
     p.set_defaults(func=_cmd_protocol)
 

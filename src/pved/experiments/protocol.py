@@ -20,7 +20,9 @@ independent runs. "Does best" is the mean over tuning seeds of the pair's metric
 
 Every stage is an ordinary run directory under ``OUT/runs`` (policies the package does
 not ship are trained first), so ``pved protocol`` again after an interruption reuses
-what finished and resumes the rest. ``protocol.json`` records the plan;
+what finished and resumes the rest; the stages before the transfer runs do not depend
+on the budget's steps per run, so another protocol's may be copied in first
+(:func:`copy_stage_runs`, ``--stages-from``). ``protocol.json`` records the plan;
 :func:`summarize` rebuilds the selection, ``summary.json``/``summary.md`` and the curves
 from the run files alone (``pved plot``).
 """
@@ -31,6 +33,7 @@ import dataclasses
 import itertools
 import json
 import math
+import shutil
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -535,6 +538,51 @@ def _candidates(
 # -- running it -------------------------------------------------------------------------
 
 
+def _stages_source(source: Path | str, out: Path | str) -> Path:
+    """``source`` resolved, once it is known to be another protocol's directory."""
+    resolved = Path(source).resolve()
+    if not (resolved / PLAN_FILE).is_file():
+        raise PvedError(f"--stages-from {source} is not a protocol directory (no {PLAN_FILE})")
+    if resolved == Path(out).resolve():
+        raise PvedError("--stages-from names the protocol's own directory")
+    return resolved
+
+
+#: The stages whose runs a protocol may take from another one (``--stages-from``): what
+#: they compute depends on their own config, not on the budget's steps per transfer run.
+COPYABLE_STAGES = ("policy", "pairs", "model", "bank")
+
+
+def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -> int:
+    """Copy ``source``'s finished policy, pairs, model and bank runs of ``pairs`` into
+    protocol directory ``out`` where ``out`` has no run of that name yet; returns how
+    many were copied.
+
+    A copied run is used only where its ``config.json`` hash equals the one the plan of
+    ``out`` asks for (``Run.is_done``); any other is redone, as an interrupted run
+    would be, so a copy can save hours (a locomotion pair's 18 models) but cannot put a
+    run made under other settings into the results. Each run is copied to a temporary
+    name and renamed, so an interrupted copy leaves nothing that looks finished.
+    """
+    source, out = _stages_source(source, out), Path(out).resolve()
+    copied = 0
+    for pair in pairs:
+        for stage in COPYABLE_STAGES:
+            stage_dir = source / "runs" / pair / stage
+            for result in sorted(stage_dir.glob("*/seed*/result.json")):
+                run = result.parent
+                target = out / "runs" / run.relative_to(source / "runs")
+                if target.exists():
+                    continue
+                partial = target.with_name(f".{target.name}.copying")
+                shutil.rmtree(partial, ignore_errors=True)
+                # checkpoints are not needed by a finished run
+                shutil.copytree(run, partial, ignore=shutil.ignore_patterns("checkpoints"))
+                partial.rename(target)
+                copied += 1
+    return copied
+
+
 def run_protocol(
     pairs: Sequence[str],
     *,
@@ -546,14 +594,20 @@ def run_protocol(
     retries: int = 2,
     live: bool = True,
     backend: str = "auto",
+    stages_from: Path | str | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
 
     A directory that already holds a protocol must hold the same one (pairs, methods,
     budget): its finished runs are reused and unfinished ones resumed. ``backend``: see
-    :func:`pved.experiments.runner.run_jobs`."""
+    :func:`pved.experiments.runner.run_jobs`. ``stages_from``: a protocol directory
+    whose finished policies, pairs, models and banks are copied in first
+    (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
+    ``paper`` one."""
     plan = ProtocolPlan(pairs, methods, budget, Path(out))
     resolve_backend(backend, address)  # before anything is written
+    if stages_from is not None:
+        _stages_source(stages_from, plan.out)
     if address:
         check_reachable(address)
     plan_path = plan.out / PLAN_FILE
@@ -586,6 +640,9 @@ def run_protocol(
     else:
         plan.out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(plan_path, {**description, "pved_version": __version__})
+    if stages_from is not None:
+        copied = copy_stage_runs(stages_from, plan.out, plan.pairs)
+        print(f"copied {copied} finished stage runs from {stages_from}", file=sys.stderr)
     report = run_jobs(
         plan,
         workers=workers,
