@@ -24,6 +24,14 @@ draws its differences: a shaped method's runs of one seed (its three source poli
 are not independent, so the interval is wide with five seeds. Runs restored from an
 archive keep no rollout rows and are left out.
 
+A third table asks whether the target can be brought nearer the source's codes at all:
+for each β the protocol's search tried (model initialisation 0, source policy 0, the
+tuning seeds), D at the first and at the last rollout, medians over the seeds, beside the
+candidate's tuning score. Where a larger β buys a smaller D by the end, the target can
+reach the codes the source bank asks for, and the term steers it; where D ends at the
+same level whatever β (ρ(β, D last) near 0 while the score falls), the target cannot get
+nearer, and a larger weight only makes the term a larger cost.
+
     .venv/bin/python scripts/shaping_scale.py reports/jaco-fetch-quick
 
 Prints a Markdown table and writes ``PROTOCOL_DIR/subspaces/shaping_scale.json``.
@@ -42,6 +50,7 @@ import torch
 from scipy.stats import spearmanr
 
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
+from pved.experiments.protocol import transfer_run_name
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
@@ -107,6 +116,58 @@ def end_distance_against_score(
     scores = np.array([float(p[metric]) for p in points])
     rho, ci = spearman_by_seed(d_end, scores, seeds)
     return {"runs": points, "spearman_rho": rho, "spearman_rho_ci": ci}
+
+
+def distance_by_beta(
+    transfer_root: Path,
+    method: str,
+    candidates: list[dict[str, Any]],
+    tuning_seeds: list[int],
+) -> dict[str, Any]:
+    """D at the first and last rollout of the β search's tuning runs of ``method``.
+
+    Args:
+        transfer_root: ``<protocol>/runs/<pair>/transfer``.
+        candidates: the method's ``selection.json`` candidates (``beta``, ``init``,
+            ``scores``); those of initialisation 0 are the β search.
+        tuning_seeds: the protocol's tuning seeds.
+
+    Returns:
+        ``betas``: per β tried (ascending) the runs that logged rollouts, the medians over
+        them of D at the first and the last rollout (``-shaping / β``), the median of each
+        run's first / last, and the candidate's mean score; ``rho_beta_d_last``: Spearman's
+        ρ between β and the median last D over the βs (None with fewer than three, or a
+        constant column): negative where a larger weight brings the target nearer.
+    """
+    rows = []
+    for candidate in sorted(candidates, key=lambda c: c["beta"]):
+        if candidate["init"] != 0:
+            continue
+        beta = float(candidate["beta"])
+        name = transfer_run_name(method, beta, 0, 0)
+        first, last = [], []
+        for seed in tuning_seeds:
+            metrics = transfer_root / name / f"seed{seed}" / "metrics.jsonl"
+            if not metrics.exists():
+                continue
+            shaping = read_eval_points(metrics, SHAPING_KEY)[1]
+            if len(shaping):
+                first.append(-shaping[0] / beta)
+                last.append(-shaping[-1] / beta)
+        if not first:
+            continue
+        rows.append(
+            {
+                "beta": beta,
+                "runs": len(first),
+                "d_first": float(np.median(first)),
+                "d_last": float(np.median(last)),
+                "fall": float(np.median(np.array(first) / np.array(last))),
+                "score": float(np.mean(candidate["scores"])),
+            }
+        )
+    rho = _spearman(np.array([r["beta"] for r in rows]), np.array([r["d_last"] for r in rows]))
+    return {"betas": rows, "rho_beta_d_last": rho}
 
 
 def _spearman(x: np.ndarray, y: np.ndarray) -> float | None:
@@ -200,6 +261,32 @@ def main() -> None:
                 f"{np.median(d_end):.3g} / {d_end.max():.3g} | {best['d_end']:.3g} "
                 f"({metric} {best[metric]:.3g}) | {rho} |"
             )
+    print()
+    print("| pair | method | β | runs | D first → last rollout (medians) | fall | score |")
+    print("|---|---|---|---|---|---|---|")
+    selection = json.loads((args.protocol / "selection.json").read_text())
+    tuning_seeds = json.loads((args.protocol / "protocol.json").read_text())["budget"][
+        "tuning_seeds"
+    ]
+    for pair, methods in result["pairs"].items():
+        for method, scale in methods.items():
+            search = distance_by_beta(
+                runs_root / pair / "transfer",
+                method,
+                selection[pair][method]["candidates"],
+                tuning_seeds,
+            )
+            scale["by_beta"] = search
+            for row in search["betas"]:
+                print(
+                    f"| {pair} | {method} | {row['beta']:g} | {row['runs']} | "
+                    f"{row['d_first']:.3g} → {row['d_last']:.3g} | {row['fall']:.3g}x | "
+                    f"{row['score']:.3g} |"
+                )
+            if search["rho_beta_d_last"] is not None:
+                print(
+                    f"| {pair} | {method} | ρ(β, D last) | | {search['rho_beta_d_last']:.2f} | | |"
+                )
     out = args.protocol / "subspaces" / "shaping_scale.json"
     out.parent.mkdir(exist_ok=True)
     atomic_write_json(out, result)

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from pved.config import get_budget, get_preset
@@ -657,6 +658,23 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     if ends["spearman_rho"] is not None:
         lo, hi = ends["spearman_rho_ci"]
         assert -1 <= lo <= hi <= 1
+    # the beta search's distances: a row per beta tried with init 0, the medians over the
+    # tuning seeds of D at the first and the last rollout
+    search = scale["by_beta"]
+    tried = sorted(c["beta"] for c in selection["candidates"] if c["init"] == 0)
+    assert [row["beta"] for row in search["betas"]] == tried
+    for row in search["betas"]:
+        run = out / "runs" / "reacher" / "transfer" / f"pved-beta{row['beta']:g}-init0-src0"
+        last = []
+        for seed in budget.tuning_seeds:
+            rows = [json.loads(x) for x in (run / f"seed{seed}" / "metrics.jsonl").open()]
+            shaping = [r["rollout/reward_shaping"] for r in rows if "rollout/reward_shaping" in r]
+            last.append(-shaping[-1] / row["beta"])
+        assert row["runs"] == len(budget.tuning_seeds)
+        assert row["d_last"] == pytest.approx(float(np.median(last)))
+    # the first rollout comes before any update, so its D is the same at every beta
+    first = [row["d_first"] for row in search["betas"]]
+    assert first == pytest.approx([first[0]] * len(first))
 
     # does the pairing relate the agents, and do the codes: refitting the selected PVED
     # at its own alpha3 must give back the very same model

@@ -155,8 +155,11 @@ def _betas_beyond(
     return [beta for beta in beyond if beta is not None]
 
 
-def _beta_tag(beta: float) -> str:
-    return f"{beta:g}"
+def transfer_run_name(method: str, beta: float, init: int, source: int) -> str:
+    """The run directory name of a shaped method's transfer run in a protocol:
+    ``<method>-beta<β>-init<model init>-src<source policy>`` (one ``seed<k>`` below it
+    per PPO seed)."""
+    return f"{method}-beta{beta:g}-init{init}-src{source}"
 
 
 class ProtocolPlan:
@@ -276,7 +279,7 @@ class ProtocolPlan:
             name = method
         else:
             assert beta is not None
-            name = f"{method}-beta{_beta_tag(beta)}-init{init}-src{source}"
+            name = transfer_run_name(method, beta, init, source)
             kwargs.update(
                 beta=beta,
                 model_path=default_model_path(pair, method, self.runs, seed=init),
