@@ -721,6 +721,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert copy_stage_runs(out, later, ["reacher"]) == len(made) > 0
     assert copy_stage_runs(out, later, ["reacher"]) == 0  # nothing is copied twice
     assert not (later / "runs" / "reacher" / "transfer").exists()
+    copied_model = later / "runs" / "reacher" / "model" / "pved" / "seed0"
+    assert json.loads((copied_model / "result.json").read_text())["model"] == str(
+        copied_model / "model.pt"
+    )  # the copy's own model, not the other protocol's
     stage_jobs = [
         job
         for job in ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", later).expand({})

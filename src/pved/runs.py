@@ -124,6 +124,23 @@ def safe_torch_load(path: Path) -> Any:
         raise PvedError(f"cannot load {path}: not a pved checkpoint ({first[:120]})") from None
 
 
+def repoint_result(run_dir: Path, final_dir: Path) -> None:
+    """Point ``result.json``'s paths to the run's own artefacts (``policy``, ``model``),
+    written where the run was made, at ``final_dir``, where a copy of the run is about to
+    live. A path to an artefact the copy lacks is dropped rather than left pointing at
+    another directory or machine."""
+    path = run_dir / "result.json"
+    result = json.loads(path.read_text())
+    for key in ("policy", "model"):
+        if isinstance(result.get(key), str):
+            name = Path(result[key]).name
+            if (run_dir / name).is_file():
+                result[key] = str(final_dir / name)
+            else:
+                del result[key]
+    atomic_write_json(path, result)
+
+
 def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:
     """``<root>/<pair>/<stage>/<name>/seed<k>``."""
     return Path(root) / pair / stage / name / f"seed{seed}"

@@ -44,7 +44,7 @@ from typing import Any
 from pved.errors import PvedError
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import train_model, train_policy, transfer
-from pved.runs import atomic_write_bytes, atomic_write_json
+from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result
 
 RUNS = "runs"
 #: the stages whose finished runs are archived, and the artefact each one's result names
@@ -200,22 +200,6 @@ def _check_archived_run(run_dir: Path) -> None:
         raise PvedError(f"archived run {run_dir} lacks its {artefact}")
 
 
-def _repoint_result(run_dir: Path, final_dir: Path) -> None:
-    """``result.json``'s paths to the run's own artefacts (``policy``, ``model``), written
-    where the run was made, made those of ``final_dir``; a path to an artefact the
-    archive left out is dropped rather than left pointing at another machine's disk."""
-    path = run_dir / "result.json"
-    result = json.loads(path.read_text())
-    for key in ("policy", "model"):
-        if isinstance(result.get(key), str):
-            name = Path(result[key]).name
-            if (run_dir / name).is_file():
-                result[key] = str(final_dir / name)
-            else:
-                del result[key]
-    atomic_write_json(path, result)
-
-
 def _staged_summary_run(entry: dict[str, Any], staged: Path) -> None:
     """A summarised run's directory as the run left it, less what the summary does not
     keep (its policy, the PPO loss rows): ``config.json``, the curve as ``metrics.jsonl``,
@@ -280,7 +264,7 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
             copy = staging / rel
             if isinstance(source, Path):
                 shutil.copytree(source, copy)
-                _repoint_result(copy, dest)
+                repoint_result(copy, dest)
             else:
                 _staged_summary_run(source, copy)
             dest.parent.mkdir(parents=True, exist_ok=True)

@@ -42,7 +42,7 @@ from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results
 from pved.experiments.runner import WORKER_ENV, _environment, _one_line
 from pved.experiments.stages import file_digest, transfer, transfer_spec
-from pved.runs import atomic_write_json, config_hash
+from pved.runs import atomic_write_json, config_hash, repoint_result
 
 BATCH_FILE = "batch.json"
 LOG_FILE = "log.json"
@@ -411,7 +411,7 @@ def import_batch(
                     shutil.copytree(run_dir, copy)
                     run_dir = copy
                 if state == "finished":
-                    _repoint_result(run_dir, job.run_dir)
+                    repoint_result(run_dir, job.run_dir)
                 # one rename on the same file system: the run appears whole or not at all
                 job.run_dir.parent.mkdir(parents=True, exist_ok=True)
                 run_dir.rename(job.run_dir)
@@ -435,12 +435,3 @@ def _imported_hash(run_dir: Path, state: str) -> str | None:
     except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
         return None
     return value if isinstance(value, str) else None
-
-
-def _repoint_result(run_dir: Path, final_dir: Path) -> None:
-    """``result.json``'s policy path, written on the other machine, made this one's."""
-    path = run_dir / "result.json"
-    result = json.loads(path.read_text())
-    if "policy" in result:
-        result["policy"] = str(final_dir / "policy.pt")
-    atomic_write_json(path, result)

@@ -67,7 +67,7 @@ from pved.experiments.stages import (
 from pved.models.registry import model_class
 from pved.models.train import shared_subspace_collapsed
 from pved.pretrained import pretrained_policy_path, shipped_seeds
-from pved.runs import atomic_write_bytes, atomic_write_json, run_path
+from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 
 if TYPE_CHECKING:
     from pved.analysis.curves import Panel
@@ -581,6 +581,7 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
                 shutil.rmtree(partial, ignore_errors=True)
                 # checkpoints are not needed by a finished run
                 shutil.copytree(run, partial, ignore=shutil.ignore_patterns("checkpoints"))
+                repoint_result(partial, target)  # its model.pt, not the other protocol's
                 partial.rename(target)
                 copied += 1
     return copied
