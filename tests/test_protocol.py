@@ -725,6 +725,10 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert json.loads((copied_model / "result.json").read_text())["model"] == str(
         copied_model / "model.pt"
     )  # the copy's own model, not the other protocol's
+    copied_pairs = next((later / "runs" / "reacher" / "pairs").glob("*/seed0"))
+    assert json.loads((copied_pairs / "result.json").read_text())["dataset"] == str(
+        copied_pairs / "pairs.npz"
+    )
     stage_jobs = [
         job
         for job in ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", later).expand({})

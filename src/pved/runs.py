@@ -125,13 +125,13 @@ def safe_torch_load(path: Path) -> Any:
 
 
 def repoint_result(run_dir: Path, final_dir: Path) -> None:
-    """Point ``result.json``'s paths to the run's own artefacts (``policy``, ``model``),
-    written where the run was made, at ``final_dir``, where a copy of the run is about to
-    live. A path to an artefact the copy lacks is dropped rather than left pointing at
-    another directory or machine."""
+    """Point ``result.json``'s paths to the run's own artefacts (``policy``, ``model``,
+    ``dataset``, ``bank``), written where the run was made, at ``final_dir``, where a copy
+    of the run is about to live. A path to an artefact the copy lacks is dropped rather
+    than left pointing at another directory or machine."""
     path = run_dir / "result.json"
     result = json.loads(path.read_text())
-    for key in ("policy", "model"):
+    for key in ("policy", "model", "dataset", "bank"):
         if isinstance(result.get(key), str):
             name = Path(result[key]).name
             if (run_dir / name).is_file():
