@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import shutil
 import tarfile
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -17,10 +19,16 @@ import pytest
 from helpers import reacher_smoke_protocol, run_cli
 from pved import __version__
 from pved.errors import PvedError
-from pved.experiments.batch import BATCH_FILE, LOG_FILE, export_batch, import_batch
+from pved.experiments.batch import (
+    BATCH_FILE,
+    LOG_FILE,
+    export_batch,
+    import_batch,
+    release_batch,
+)
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import transfer, transfer_spec
-from pved.runs import Run, atomic_write_json
+from pved.runs import Run, atomic_write_json, claim_holder, write_claim
 
 
 def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
@@ -31,6 +39,14 @@ def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
 @pytest.fixture(scope="module")
 def protocol(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return reacher_smoke_protocol(tmp_path_factory.mktemp("proto"))
+
+
+@pytest.fixture(autouse=True)
+def _no_claims_left_behind(protocol: Path) -> Iterator[None]:
+    # the protocol is shared by this module's tests: one test's exports must not hold
+    # runs back from the next
+    yield
+    release_batch(protocol)
 
 
 @pytest.mark.slow
@@ -95,7 +111,7 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
     before = {p: p.stat().st_mtime_ns for p in results}
     assert sorted(import_batch(protocol, tars)["exists"]) == sorted(keys)
     assert before == {p: p.stat().st_mtime_ns for p in results}
-    again = export_batch(protocol, tmp_path / "batch2")
+    again = export_batch(protocol, tmp_path / "batch2", claim_minutes=0)
     assert again and not set(again) & set(keys)
     # --skip leaves the front of that order to a protocol running here
     assert export_batch(protocol, tmp_path / "batch3", skip=1, limit=1) == again[1:2]
@@ -195,11 +211,11 @@ def test_one_batch_serves_several_protocols(protocol: Path, tmp_path: Path) -> N
     walker = tmp_path / "walker"
     plan = ProtocolPlan(["walker-hopper"], ["ppo"], "smoke", walker)
     atomic_write_json(walker / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
-    keys = export_batch([protocol, walker], tmp_path / "both", limit=2)
+    keys = export_batch([protocol, walker], tmp_path / "both", limit=2, claim_minutes=0)
     # two of each, alternating, each protocol's in its own order
     assert [k.split("/")[0] for k in keys] == ["reacher", "walker-hopper"] * 2
-    assert keys[0::2] == export_batch(protocol, tmp_path / "reacher-only", limit=2)
-    assert keys[1::2] == export_batch(walker, tmp_path / "walker-only", limit=2)
+    for source, name, part in ((protocol, "reacher-only", 0), (walker, "walker-only", 1)):
+        assert keys[part::2] == export_batch(source, tmp_path / name, limit=2, claim_minutes=0)
     exported = json.loads((tmp_path / "both" / BATCH_FILE).read_text())
     assert len(exported["protocols"]) == 2
     assert (tmp_path / "both/runs/reacher/model/pved/seed0/model.pt").exists()
@@ -216,3 +232,41 @@ def test_one_batch_serves_several_protocols(protocol: Path, tmp_path: Path) -> N
     with pytest.raises(PvedError, match="same name"):
         export_batch([walker, again], tmp_path / "clash")
     assert not (tmp_path / "clash").exists()
+
+
+@pytest.mark.slow
+def test_exported_runs_are_claimed_until_sent_back_or_released(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = ProtocolPlan.load(protocol)
+    run_dirs = {
+        j.key: j.run_dir for j in plan.expand(_finished_results(plan)) if j.run_dir is not None
+    }
+    first = export_batch(protocol, tmp_path / "b1", limit=2)
+    holder = str((tmp_path / "b1").resolve())
+    assert [claim_holder(run_dirs[k]) for k in first] == [holder, holder]
+    # the next export leaves them to the first batch; without a claim nothing is held
+    second = export_batch(protocol, tmp_path / "b2", limit=2, claim_minutes=0)
+    assert second and not set(first) & set(second)
+    assert all(claim_holder(run_dirs[k]) is None for k in second)
+    # an expired claim holds nothing back
+    write_claim(run_dirs[second[0]], "gone", time.time() - 1)
+    assert export_batch(protocol, tmp_path / "b3", limit=1, claim_minutes=0) == second[:1]
+
+    # the other machine started the first run only, and it made nothing: importing it
+    # ends that claim, the run it never started stays claimed
+    exported = json.loads((tmp_path / "b1" / BATCH_FILE).read_text())
+    started = tmp_path / "b1" / "runs" / exported["jobs"][0]["run_dir"]
+    started.mkdir(parents=True)
+    (started / "config.json").write_text("{}")
+    assert import_batch(protocol, [tmp_path / "b1"])["empty"] == first[:1]
+    assert claim_holder(run_dirs[first[0]]) is None
+    assert claim_holder(run_dirs[first[1]]) == holder
+    # another batch's release leaves it; its own ends it
+    code, out, err = run_cli(capsys, "batch", "release", "--protocol", protocol,
+                          "--batch", tmp_path / "b2")  # fmt: skip
+    assert code == 0 and out.strip() == "0 runs released", err
+    code, out, err = run_cli(capsys, "batch", "release", "--protocol", protocol,
+                          "--batch", tmp_path / "b1")  # fmt: skip
+    assert code == 0 and out.strip() == "1 runs released", err
+    assert claim_holder(run_dirs[first[1]]) is None

@@ -20,6 +20,7 @@ from pved.config import get_budget, get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import COPYABLE_STAGES, ProtocolPlan, copy_stage_runs
 from pved.experiments.runner import Job, resolve_backend, run_jobs
+from pved.runs import write_claim
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -417,6 +418,42 @@ def test_live_view_rate_leaves_out_the_steps_of_earlier_calls(
     second = view.update(1, 1, 0, 5, 1_005_000, 3_000_000, earlier_steps=1_000_000)
     assert second["steps_per_s"] == pytest.approx(5_000 / 20)
     assert second["eta_s"] == pytest.approx(1_995_000 / 250)
+
+
+def _ran_at(log: str) -> float:
+    Path(log).write_text(repr(time.time()))
+    return time.time()
+
+
+def test_runner_leaves_a_claimed_run_to_its_batch_then_makes_it(tmp_path: Path) -> None:
+    _ship_this_module_to("processes")
+    claimed, expired = tmp_path / "claimed" / "seed0", tmp_path / "expired" / "seed0"
+    until = time.time() + 2.0
+    write_claim(claimed, "a batch", until)
+    write_claim(expired, "a batch", time.time() - 1.0)
+    jobs = [
+        Job("claimed", _ran_at, {"log": str(tmp_path / "claimed.txt")}, run_dir=claimed),
+        Job("expired", _ran_at, {"log": str(tmp_path / "expired.txt")}, run_dir=expired),
+    ]
+    status = tmp_path / "status.json"
+    report = run_jobs(
+        _FixedPlan(jobs), workers=2, status_path=status, backend="processes", poll_s=0.1
+    )
+    # the runner neither made the claimed run at once nor ended without it
+    assert set(report.results) == {"claimed", "expired"}
+    assert float((tmp_path / "claimed.txt").read_text()) >= until
+    assert float((tmp_path / "expired.txt").read_text()) < until
+
+
+def test_live_view_counts_the_runs_away_in_a_batch(tmp_path: Path) -> None:
+    import io
+
+    from pved.experiments import runner
+
+    stream = io.StringIO()
+    view = runner.LiveView(tmp_path / "status.json", stream=stream)
+    status = view.update(1, 0, 0, 3, 10, 40, force=True, away=2)
+    assert status["away"] == 2 and "3 waiting (2 away in a batch)" in stream.getvalue()
 
 
 def _starts_over(run_dir: str) -> str:

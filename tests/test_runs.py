@@ -11,7 +11,17 @@ import pytest
 import torch
 
 from pved.errors import PvedError
-from pved.runs import Run, atomic_write_json, config_hash, run_path, safe_torch_load
+from pved.runs import (
+    Run,
+    atomic_write_json,
+    claim_file,
+    claim_holder,
+    config_hash,
+    release_claim,
+    run_path,
+    safe_torch_load,
+    write_claim,
+)
 
 
 def test_config_hash_ignores_key_order_and_sees_values() -> None:
@@ -108,3 +118,18 @@ def test_file_digest_names_a_pytorch_files_state_not_its_bytes(tmp_path: Path) -
     np.savez(tmp_path / "d.npz", x=np.ones(3))
     expected = hashlib.sha256((tmp_path / "d.npz").read_bytes()).hexdigest()[:16]
     assert file_digest(tmp_path / "d.npz") == expected
+
+
+def test_a_claim_holds_until_it_expires_and_a_damaged_one_holds_nothing(tmp_path: Path) -> None:
+    run_dir = tmp_path / "transfer" / "pved" / "seed0"
+    write_claim(run_dir, "batch-a", until=100.0)
+    assert not run_dir.exists() and claim_file(run_dir).parent == run_dir.parent
+    assert claim_holder(run_dir, now=99.0) == "batch-a"
+    assert claim_holder(run_dir, now=100.0) is None
+    # only its holder's release (or any, with no holder named) removes it
+    assert not release_claim(run_dir, "batch-b") and claim_file(run_dir).exists()
+    assert release_claim(run_dir, "batch-a") and not claim_file(run_dir).exists()
+    assert not release_claim(run_dir)
+    for damaged in ("{", '{"holder": 3, "until": 1e12}', '{"holder": "x"}', "[]"):
+        claim_file(run_dir).write_text(damaged)
+        assert claim_holder(run_dir, now=0.0) is None

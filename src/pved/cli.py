@@ -194,8 +194,17 @@ def _cmd_batch(args: argparse.Namespace) -> None:
     from pved.experiments import batch
 
     if args.action == "export":
-        keys = batch.export_batch(args.protocol, args.batch, limit=args.limit, skip=args.skip)
+        keys = batch.export_batch(
+            args.protocol,
+            args.batch,
+            limit=args.limit,
+            skip=args.skip,
+            claim_minutes=args.claim_minutes,
+        )
         print(f"{args.batch}: {len(keys)} runs")
+    elif args.action == "release":
+        released = batch.release_batch(args.protocol, args.batch)
+        print(f"{len(released)} runs released")
     elif args.action == "run":
         log = batch.run_batch(
             args.batch, workers=args.workers, deadline_s=args.deadline_s, start_by_s=args.start_by_s
@@ -529,8 +538,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--skip",
         type=int,
         default=0,
-        help="leave out the first N (those a protocol running here reaches next)",
+        help="leave out the first N (for a protocol running here that predates claims)",
     )
+    a.add_argument(
+        "--claim-minutes",
+        type=float,
+        default=60.0,
+        help="claim the exported runs this long: a protocol running here leaves them to "
+        "the batch (default 60; 0: no claim)",
+    )
+    a = actions.add_parser("release", help="end a batch's claims on the runs it did not send back")
+    a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")
+    a.add_argument("--batch", type=Path, help="only this batch's claims (default: all)")
     a = actions.add_parser("run", help="run a batch's runs side by side")
     a.add_argument("--batch", type=Path, required=True)
     a.add_argument("--workers", type=int, help="runs side by side (default: the CPUs)")

@@ -8,6 +8,9 @@
 - ``checkpoints/step<N>.pt``: resumable state, newest wins;
 - ``result.json``: written last and atomically; its presence with the same config hash
   means the stage is done and is skipped.
+
+Beside a run directory not yet made, ``.seed<k>.claim`` says that the run is being made
+elsewhere (an exported batch) until a given time: the protocol leaves it alone till then.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import math
 import os
 import subprocess
 import tempfile
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -139,6 +143,50 @@ def repoint_result(run_dir: Path, final_dir: Path) -> None:
             else:
                 del result[key]
     atomic_write_json(path, result)
+
+
+def claim_file(run_dir: Path) -> Path:
+    """Where a claim on ``run_dir`` lives: a hidden file beside it, so that globbing the
+    runs (``*/transfer/*/seed*``) never sees it."""
+    return run_dir.with_name(f".{run_dir.name}.claim")
+
+
+def write_claim(run_dir: Path, holder: str, until: float) -> None:
+    """Claim ``run_dir`` for ``holder`` (e.g. a batch directory) until ``until`` (seconds
+    since the epoch): a claim expires on its own, so a batch that never comes back only
+    delays its runs here."""
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(claim_file(run_dir), {"holder": holder, "until": until})
+
+
+def claim_holder(run_dir: Path, now: float | None = None) -> str | None:
+    """The holder of an unexpired claim on ``run_dir``, else None. An unreadable claim
+    counts as none: a damaged file must not hold a protocol's run back."""
+    try:
+        claim = json.loads(claim_file(run_dir).read_text())
+        holder, until = claim["holder"], float(claim["until"])
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+        return None
+    if not isinstance(holder, str):
+        return None
+    return holder if until > (time.time() if now is None else now) else None
+
+
+def release_claim(run_dir: Path, holder: str | None = None) -> bool:
+    """Remove the claim on ``run_dir`` (only ``holder``'s, when given, expired or not);
+    returns whether one was removed."""
+    path = claim_file(run_dir)
+    if holder is not None:
+        try:
+            if json.loads(path.read_text()).get("holder") != holder:
+                return False
+        except (OSError, ValueError, AttributeError, UnicodeDecodeError):
+            return False
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        return False
+    return True
 
 
 def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:

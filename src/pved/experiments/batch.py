@@ -6,7 +6,9 @@ Three steps, each a ``pved batch`` verb:
 1. :func:`export_batch` writes the protocol's transfer runs that are ready to start (their
    model and source bank exist) and not started here into a batch directory:
    ``batch.json`` (each run's arguments, paths relative to the batch) and the models and
-   banks they read, under ``runs/`` as the protocol lays them out.
+   banks they read, under ``runs/`` as the protocol lays them out. It claims each run
+   for the batch for an hour (by default): a protocol running here meanwhile waits
+   for a claimed run instead of making it too, and the next export leaves it out.
 2. :func:`run_batch`, on the other machine, runs them side by side, one process each,
    until they are done or a deadline passes; a run killed at the deadline keeps its last
    checkpoint. :func:`pack_batch` puts the run directories into tar files of a given
@@ -15,7 +17,9 @@ Three steps, each a ``pved batch`` verb:
    protocol's ``runs/``, after checking that its config hash is the one the protocol
    would give that run here (same PPO config, budget, model and bank digests). It never
    replaces a run directory that exists; a partial run resumes from its checkpoint when
-   the protocol is run again, and a finished one is taken as done.
+   the protocol is run again, and a finished one is taken as done. The claim on each
+   run the batch sent back ends; :func:`release_batch` ends the rest (runs the other
+   machine never started), else they expire.
 
 Only transfer runs travel: the other stages read the pairing dataset (hundreds of MB on
 the locomotion pairs) and are few. A batch's runs are the same computation as the
@@ -42,7 +46,14 @@ from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results
 from pved.experiments.runner import WORKER_ENV, _environment, _one_line
 from pved.experiments.stages import file_digest, transfer, transfer_spec
-from pved.runs import atomic_write_json, config_hash, repoint_result
+from pved.runs import (
+    atomic_write_json,
+    claim_holder,
+    config_hash,
+    release_claim,
+    repoint_result,
+    write_claim,
+)
 
 BATCH_FILE = "batch.json"
 LOG_FILE = "log.json"
@@ -103,14 +114,18 @@ def export_batch(
     *,
     limit: int | None = None,
     skip: int = 0,
+    claim_minutes: float = 60.0,
 ) -> list[str]:
     """Write the protocol's transfer runs that can start now and have not started here
-    (no run directory) into ``batch_dir``, in the order the protocol would run them (the
-    tuning runs first), at most ``limit``; returns their job keys.
+    (no run directory, no other batch's claim) into ``batch_dir``, in the order the
+    protocol would run them (the tuning runs first), at most ``limit``; returns their
+    job keys.
 
-    ``skip``: leave the first ``skip`` of them out, for a protocol that keeps running
-    here meanwhile (those are the runs it reaches next). ``batch_dir`` must not exist: a
-    batch is written once, then run and imported.
+    Each exported run is claimed for the batch for ``claim_minutes`` (0: not claimed),
+    so that a protocol running here meanwhile leaves it to the batch instead of making
+    it twice; importing a run, or :func:`release_batch`, ends its claim. ``skip``: leave
+    the first ``skip`` out anyway (for a protocol started before claims existed).
+    ``batch_dir`` must not exist: a batch is written once, then run and imported.
 
     Several protocol directories (of different pairs) make one batch, so that one pool
     of workers serves them all: ``limit`` and ``skip`` apply to each protocol, and their
@@ -126,7 +141,11 @@ def export_batch(
         raise PvedError(f"--limit must be at least 1, not {limit}")
     if skip < 0:
         raise PvedError(f"--skip must be at least 0, not {skip}")
+    if not claim_minutes >= 0:
+        raise PvedError(f"--claim-minutes must be at least 0, not {claim_minutes}")
+    now = time.time()
     per_protocol: list[list[dict[str, Any]]] = []
+    claims: list[Path] = []  # the exported runs' directories in their protocols
     inputs: dict[str, str] = {}
     sources: dict[str, Path] = {}  # an input's relative path -> its file here
     plans = [ProtocolPlan.load(Path(d)) for d in dirs]
@@ -139,6 +158,7 @@ def export_batch(
             and job.key not in results
             and job.run_dir is not None
             and not job.run_dir.exists()
+            and claim_holder(job.run_dir, now) is None
             and all(dep in results for dep in job.deps)
         ]
         ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
@@ -164,6 +184,7 @@ def export_batch(
                     "run_dir": _relative(job.run_dir, plan.runs, "run"),
                 }
             )
+            claims.append(job.run_dir)
         per_protocol.append(jobs)
     # alternate the protocols' runs, each protocol's in its own order
     jobs = [j for group in itertools.zip_longest(*per_protocol) for j in group if j is not None]
@@ -193,7 +214,29 @@ def export_batch(
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    if claim_minutes > 0:
+        holder = _holder(batch)
+        for run_dir in claims:
+            write_claim(run_dir, holder, now + 60.0 * claim_minutes)
     return [j["key"] for j in jobs]
+
+
+def _holder(batch_dir: Path) -> str:
+    """The name a batch's claims go under: its directory, resolved."""
+    return str(batch_dir.resolve())
+
+
+def release_batch(protocol_dir: Path | str, batch_dir: Path | str | None = None) -> list[str]:
+    """End the claims that ``batch_dir`` (every batch, when None) holds on the protocol's
+    runs, e.g. after a batch that failed or ran out of time: the protocol then makes
+    those runs itself. Returns the released runs' job keys."""
+    plan = ProtocolPlan.load(Path(protocol_dir))
+    holder = None if batch_dir is None else _holder(Path(batch_dir))
+    return [
+        job.key
+        for job in plan.expand(_finished_results(plan))
+        if job.fn is transfer and job.run_dir is not None and release_claim(job.run_dir, holder)
+    ]
 
 
 def _run_one(kwargs: dict[str, Any], error_file: str) -> None:
@@ -396,14 +439,22 @@ def import_batch(
                     outcome["unknown"].append(rel)
                     continue
                 state = _run_state(run_dir)
-                if state == "nothing" or (finished_only and state == "partial"):
+                assert job.run_dir is not None
+                if finished_only and state == "partial":
+                    outcome["empty"].append(job.key)  # still going there: still claimed
+                    continue
+                # from here on the batch is done with the run; it goes back to the
+                # protocol (made by the batch, already here, or to be made here)
+                if state == "nothing":
+                    release_claim(job.run_dir)
                     outcome["empty"].append(job.key)
                     continue
-                assert job.run_dir is not None
                 if job.run_dir.exists():
+                    release_claim(job.run_dir)
                     outcome["exists"].append(job.key)
                     continue
                 if _imported_hash(run_dir, state) != _expected_hash(job.kwargs):
+                    release_claim(job.run_dir)
                     outcome["mismatch"].append(job.key)
                     continue
                 if staging not in run_dir.parents:  # a batch directory's: copied, kept there
@@ -415,6 +466,7 @@ def import_batch(
                 # one rename on the same file system: the run appears whole or not at all
                 job.run_dir.parent.mkdir(parents=True, exist_ok=True)
                 run_dir.rename(job.run_dir)
+                release_claim(job.run_dir)  # only now: never unclaimed while absent
                 outcome[state].append(job.key)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

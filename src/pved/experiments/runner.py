@@ -17,6 +17,10 @@ machines) the ``processes`` backend runs the same graph on a local pool of proce
 job each. A job that raises, or whose worker dies, is submitted again up to ``retries``
 times, then recorded as failed with its error; jobs that depend on it are reported as
 blocked. Nothing is hidden: the final :class:`RunnerReport` lists both.
+
+A job whose run directory an exported batch has claimed (:func:`pved.runs.write_claim`)
+is not started while the claim lasts; the runner waits for it rather than ending, and a
+run imported meanwhile is then found done.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from pved.errors import PvedError
-from pved.runs import atomic_write_json
+from pved.runs import atomic_write_json, claim_holder
 
 #: Environment of every worker: one thread per run (parallelism comes from runs side by
 #: side), headless rendering.
@@ -333,10 +337,12 @@ class LiveView:
         total: int,
         force: bool = False,
         earlier_steps: int = 0,
+        away: int = 0,
     ) -> dict[str, Any]:
         """``steps``: env steps of the finished and running jobs; ``earlier_steps``: the
         part of them an earlier call trained (finished runs found on disk, and what the
-        resumed runs had reached), left out of the rate."""
+        resumed runs had reached), left out of the rate; ``away``: the waiting jobs that
+        an exported batch has claimed."""
         now = time.monotonic()
         fresh = steps - earlier_steps
         if self.start_steps is None:
@@ -349,6 +355,7 @@ class LiveView:
             "running": running,
             "failed": failed,
             "pending": pending,
+            "away": away,
             "env_steps": steps,
             "env_steps_earlier": earlier_steps,
             "env_steps_total": total,
@@ -360,7 +367,9 @@ class LiveView:
             self.last = now
             eta_text = "?" if eta is None else time.strftime("%H:%M:%S", time.gmtime(eta))
             line = (
-                f"runs: {done} done, {running} running, {failed} failed, {pending} waiting | "
+                f"runs: {done} done, {running} running, {failed} failed, {pending} waiting"
+                + (f" ({away} away in a batch)" if away else "")
+                + " | "
                 f"{steps:,}/{total:,} env steps | {rate:,.0f} steps/s | ETA {eta_text}"
             )
             if self.tty:
@@ -484,7 +493,7 @@ def _run(
                 known[job.key] = job
         running_keys = {j.key for j in in_flight.values()}
         blocked = set(blocked_keys())
-        ready = [
+        startable = [
             job
             for job in known.values()
             if job.key not in results
@@ -493,6 +502,11 @@ def _run(
             and job.key not in blocked
             and all(d in results for d in job.deps)
         ]
+        # a run claimed by an exported batch is being made elsewhere: it waits for the
+        # import (or the claim's expiry) rather than being made twice
+        now = time.time()
+        away = {j.key for j in startable if j.run_dir and claim_holder(j.run_dir, now)}
+        ready = [j for j in startable if j.key not in away]
         # only as many as can run: a job that becomes ready later with a lower priority
         # (e.g. the runs a selection waits on) is not queued behind independent ones
         free = executor.capacity() - len(in_flight)
@@ -508,9 +522,13 @@ def _run(
                 progress_steps(),
                 max(planner.expected_steps(), progress_steps()),
                 earlier_steps=sum(earlier.values()),
+                away=len(away),
             )
         if not in_flight:
-            break
+            if not away:
+                break
+            time.sleep(poll_s)
+            continue
         for handle in executor.wait(list(in_flight), poll_s):
             job = in_flight.pop(handle)
             try:
