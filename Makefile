@@ -20,7 +20,9 @@ demo: $(STAMP)
 # The paper's protocol on one pair with every method: make reproduce PAIR=reacher BUDGET=quick
 # (WORKERS=1 leaves the other cores free; rerunning the same command resumes;
 # FROM=quick first copies the finished policies, pairs, models and banks of
-# reports/<pair>-quick, which a paper-budget protocol would otherwise make again)
+# reports/<pair>-quick, which a paper-budget protocol would otherwise make again;
+# BUDGET=paper-wide FROM=paper also copies the paper protocol's transfer runs, so only
+# the 66 new evaluation runs a method are made; METHODS="pved ppo" narrows it)
 PAIR    ?= reacher
 BUDGET  ?= quick
 METHODS ?= pved pved-state-only pved-shared-only pved-det-shared pved-vae gupta2017 ppo oracle

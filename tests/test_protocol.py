@@ -18,9 +18,10 @@ import pytest
 
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
-from pved.experiments.protocol import COPYABLE_STAGES, ProtocolPlan, copy_stage_runs
+from pved.experiments.protocol import COPYABLE_STAGES, PLAN_FILE, ProtocolPlan, copy_stage_runs
 from pved.experiments.runner import Job, resolve_backend, run_jobs
-from pved.runs import write_claim
+from pved.experiments.stages import transfer_spec
+from pved.runs import atomic_write_json, config_hash, write_claim
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -781,11 +782,48 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         job.fn(**job.kwargs)
         assert result.stat().st_mtime_ns == written, job.key  # not made again
 
+    # a plan of the same steps per transfer run also takes the finished transfer runs,
+    # and its own transfer jobs find them done
+    same_steps = tmp_path / "same-steps"
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", same_steps)
+    atomic_write_json(same_steps / PLAN_FILE, plan.describe())
+    transfer_made = list((out / "runs" / "reacher" / "transfer").glob("*/seed*/result.json"))
+    assert copy_stage_runs(out, same_steps, ["reacher"]) == len(made) + len(transfer_made)
+    ppo_jobs = [j for j in plan.expand({}) if "/transfer/ppo/" in j.key]
+    assert ppo_jobs
+    for job in ppo_jobs:
+        assert job.run_dir is not None
+        result = job.run_dir / "result.json"
+        written = result.stat().st_mtime_ns
+        assert job.fn(**job.kwargs)["policy"] == str(job.run_dir / "policy.pt")
+        assert result.stat().st_mtime_ns == written, job.key  # not made again
+
     # the same directory with other settings is refused, in one line
     other_cmd = [*PVED, "protocol", "--pair", "reacher", "--methods", "ppo", "--out", str(out)]
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
     assert other.returncode == 2
     assert other.stderr.strip().count("\n") == 0 and "other settings" in other.stderr
+
+
+def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
+    tmp_path: Path,
+) -> None:
+    paper = ProtocolPlan(["walker-hopper"], ["ppo"], "paper", tmp_path / "paper")
+    wide = ProtocolPlan(["walker-hopper"], ["ppo"], "paper-wide", tmp_path / "wide")
+    assert wide.describe()["transfer_steps"] == paper.describe()["transfer_steps"]
+    assert "steps_of" not in paper.describe()["budget"]  # older plans still match
+
+    def runs(plan: ProtocolPlan) -> dict[str, str]:
+        specs = {}
+        for job in plan.expand({}):
+            args = {k: v for k, v in job.kwargs.items() if k not in ("runs_root", "progress")}
+            specs[job.key] = config_hash(transfer_spec(**args).config)
+        return specs
+
+    paper_runs, wide_runs = runs(paper), runs(wide)
+    # each paper run is in the wide plan under the same name and config: copied, not redone
+    assert paper_runs.items() <= wide_runs.items()
+    assert len(paper_runs) == 15 and len(wide_runs) == 81
 
 
 @pytest.mark.parametrize(

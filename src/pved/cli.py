@@ -493,7 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
         "same command resumes.",
     )
     p.add_argument("--pair", nargs="+", required=True)
-    p.add_argument("--budget", default="smoke", help="smoke | quick | paper")
+    p.add_argument(
+        "--budget", default="smoke", help="smoke | quick | paper | paper-wide (81 evaluation runs)"
+    )
     p.add_argument("--methods", nargs="+", default=["pved", "ppo"])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--address", help="a running Ray cluster (default: a local one)")

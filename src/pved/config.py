@@ -21,6 +21,9 @@ from pved.rl.ppo import PPOConfig
 # Seeds of the paper's protocol (IV.A): tuning and evaluation seeds of the DRL stage.
 TUNING_SEEDS: tuple[int, ...] = (2000, 4000, 6000, 8000, 10000)
 EVALUATION_SEEDS: tuple[int, ...] = (20000, 40000, 60000, 80000, 100000)
+#: The ``paper-wide`` budget's evaluation seeds: the paper's five, then 22 more on the
+#: same spacing (27 x 3 source policies = 81 runs a method).
+WIDE_EVALUATION_SEEDS: tuple[int, ...] = tuple(20000 * k for k in range(1, 28))
 
 
 @dataclass(frozen=True)
@@ -173,6 +176,8 @@ class ProtocolBudget:
         eval_every, eval_episodes, final_eval_episodes: learning-curve schedule.
         pair_episodes, model_epochs, bank_episodes, policy_steps: sizes of the earlier
             stages; ``policy_steps`` only matters for policies the package does not ship.
+        steps_of: the budget whose steps per transfer run this one takes (None: its
+            own name's, ``PairPreset.protocol_steps``).
     """
 
     name: str
@@ -189,6 +194,12 @@ class ProtocolBudget:
     model_epochs: int | None = None
     bank_episodes: int | None = None
     policy_steps: int | None = None
+    steps_of: str | None = None
+
+    @property
+    def steps_budget(self) -> str:
+        """The budget name to look up the steps per transfer run under."""
+        return self.steps_of or self.name
 
 
 BUDGETS: dict[str, ProtocolBudget] = {
@@ -213,6 +224,12 @@ BUDGETS: dict[str, ProtocolBudget] = {
     "quick": ProtocolBudget(name="quick", tuning_seeds=TUNING_SEEDS[:3]),
     # paper IV.A: 5 tuning seeds, 3 source policies x 5 evaluation seeds, 3 model inits
     "paper": ProtocolBudget(name="paper"),
+    # the paper's protocol with 81 evaluation runs a method instead of 15: enough to tell
+    # apart two success rates 0.2 apart when every run ends all or nothing
+    # (docs/decisions.md, "The paper-wide budget"); its first 15 are the paper's runs
+    "paper-wide": ProtocolBudget(
+        name="paper-wide", evaluation_seeds=WIDE_EVALUATION_SEEDS, steps_of="paper"
+    ),
 }
 
 

@@ -192,11 +192,16 @@ class ProtocolPlan:
     def describe(self) -> dict[str, Any]:
         """The plan as written to ``protocol.json`` (what a restart must match)."""
         b = self.budget
+        budget = dataclasses.asdict(b)
+        if budget["steps_of"] is None:
+            # newer than the plans of running protocols: left out where unused, so that
+            # their protocol.json still matches and they resume
+            del budget["steps_of"]
         return {
             "pairs": self.pairs,
             "methods": self.methods,
-            "budget": dataclasses.asdict(b),
-            "transfer_steps": {p: get_preset(p).transfer_steps(b.name) for p in self.pairs},
+            "budget": budget,
+            "transfer_steps": {p: get_preset(p).transfer_steps(b.steps_budget) for p in self.pairs},
             "beta_grids": {
                 p: {m: list(self._grid(p, m)) for m in self.model_methods} for p in self.pairs
             },
@@ -263,7 +268,7 @@ class ProtocolPlan:
     ) -> Job:
         preset = get_preset(pair)
         b = self.budget
-        steps = preset.transfer_steps(b.name)
+        steps = preset.transfer_steps(b.steps_budget)
         kwargs: dict[str, Any] = {
             "pair": pair,
             "method": method,
@@ -500,7 +505,7 @@ class ProtocolPlan:
         total = 0
         for pair in self.pairs:
             preset = get_preset(pair)
-            steps = preset.transfer_steps(b.name)
+            steps = preset.transfer_steps(b.steps_budget)
             per_eval = b.source_policies * len(b.evaluation_seeds)
             for method in self.methods:
                 runs = per_eval
@@ -556,10 +561,20 @@ def _stages_source(source: Path | str, out: Path | str) -> Path:
 COPYABLE_STAGES = ("policy", "pairs", "model", "bank")
 
 
+def _transfer_steps(protocol_dir: Path) -> dict[str, Any]:
+    """A protocol directory's steps per transfer run by pair, from its plan file."""
+    try:
+        steps = json.loads((protocol_dir / PLAN_FILE).read_text()).get("transfer_steps")
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return {}
+    return steps if isinstance(steps, dict) else {}
+
+
 def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -> int:
     """Copy ``source``'s finished policy, pairs, model and bank runs of ``pairs`` into
     protocol directory ``out`` where ``out`` has no run of that name yet; returns how
-    many were copied.
+    many were copied. Where both plans give a pair the same steps per transfer run
+    (``paper`` and ``paper-wide``, say), its finished transfer runs are copied too.
 
     A copied run is used only where its ``config.json`` hash equals the one the plan of
     ``out`` asks for (``Run.is_done``); any other is redone, as an interrupted run
@@ -568,9 +583,11 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
     name and renamed, so an interrupted copy leaves nothing that looks finished.
     """
     source, out = _stages_source(source, out), Path(out).resolve()
+    source_steps, out_steps = _transfer_steps(source), _transfer_steps(out)
     copied = 0
     for pair in pairs:
-        for stage in COPYABLE_STAGES:
+        same_steps = pair in out_steps and source_steps.get(pair) == out_steps[pair]
+        for stage in (*COPYABLE_STAGES, "transfer") if same_steps else COPYABLE_STAGES:
             stage_dir = source / "runs" / pair / stage
             for result in sorted(stage_dir.glob("*/seed*/result.json")):
                 run = result.parent
@@ -646,7 +663,7 @@ def run_protocol(
         atomic_write_json(plan_path, {**description, "pved_version": __version__})
     if stages_from is not None:
         copied = copy_stage_runs(stages_from, plan.out, plan.pairs)
-        print(f"copied {copied} finished stage runs from {stages_from}", file=sys.stderr)
+        print(f"copied {copied} finished runs from {stages_from}", file=sys.stderr)
     report = run_jobs(
         plan,
         workers=workers,
