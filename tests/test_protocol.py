@@ -18,7 +18,14 @@ import pytest
 
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
-from pved.experiments.protocol import COPYABLE_STAGES, PLAN_FILE, ProtocolPlan, copy_stage_runs
+from pved.experiments.protocol import (
+    COPYABLE_STAGES,
+    PLAN_FILE,
+    ProtocolPlan,
+    copy_stage_runs,
+    transfer_run_method,
+    transfer_run_name,
+)
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer_spec
 from pved.runs import atomic_write_json, config_hash, write_claim
@@ -784,11 +791,13 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
 
     # a plan of the same steps per transfer run also takes the finished transfer runs,
     # and its own transfer jobs find them done
+    # (of the methods it has: here plain PPO's, not PVED's)
     same_steps = tmp_path / "same-steps"
-    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", same_steps)
+    plan = ProtocolPlan(["reacher"], ["ppo"], "smoke", same_steps)
     atomic_write_json(same_steps / PLAN_FILE, plan.describe())
-    transfer_made = list((out / "runs" / "reacher" / "transfer").glob("*/seed*/result.json"))
-    assert copy_stage_runs(out, same_steps, ["reacher"]) == len(made) + len(transfer_made)
+    ppo_made = list((out / "runs" / "reacher" / "transfer" / "ppo").glob("seed*/result.json"))
+    assert copy_stage_runs(out, same_steps, ["reacher"]) == len(made) + len(ppo_made)
+    assert [p.name for p in (same_steps / "runs" / "reacher" / "transfer").iterdir()] == ["ppo"]
     ppo_jobs = [j for j in plan.expand({}) if "/transfer/ppo/" in j.key]
     assert ppo_jobs
     for job in ppo_jobs:
@@ -803,6 +812,24 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     other = subprocess.run(other_cmd, env=_env(), capture_output=True, text=True)
     assert other.returncode == 2
     assert other.stderr.strip().count("\n") == 0 and "other settings" in other.stderr
+
+
+@pytest.mark.parametrize(
+    ("name", "method"),
+    [
+        ("pved-beta0.001-init0-src0", "pved"),
+        ("pved-vae-beta1e-05-init2-src1", "pved-vae"),
+        ("gupta2017-beta10-init1-src2", "gupta2017"),
+        ("ppo", "ppo"),
+        ("oracle", "oracle"),
+    ],
+)
+def test_a_transfer_run_name_gives_back_its_method(name: str, method: str) -> None:
+    assert transfer_run_method(name) == method
+    if name != method:
+        beta = float(name.split("-beta")[1].split("-init")[0])
+        init, source = (int(x) for x in name.split("-init")[1].split("-src"))
+        assert transfer_run_name(method, beta, init, source) == name
 
 
 def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(

@@ -33,6 +33,7 @@ import dataclasses
 import itertools
 import json
 import math
+import re
 import shutil
 import sys
 from collections.abc import Mapping, Sequence
@@ -160,6 +161,16 @@ def transfer_run_name(method: str, beta: float, init: int, source: int) -> str:
     ``<method>-beta<β>-init<model init>-src<source policy>`` (one ``seed<k>`` below it
     per PPO seed)."""
     return f"{method}-beta{beta:g}-init{init}-src{source}"
+
+
+_SHAPED_RUN_NAME = re.compile(r"^(?P<method>.+)-beta[^/]+-init\d+-src\d+$")
+
+
+def transfer_run_method(name: str) -> str:
+    """The method of a transfer run directory name: the ``<method>`` of
+    :func:`transfer_run_name`'s, else the name itself (``ppo``, ``oracle``)."""
+    match = _SHAPED_RUN_NAME.match(name)
+    return match["method"] if match else name
 
 
 class ProtocolPlan:
@@ -561,20 +572,20 @@ def _stages_source(source: Path | str, out: Path | str) -> Path:
 COPYABLE_STAGES = ("policy", "pairs", "model", "bank")
 
 
-def _transfer_steps(protocol_dir: Path) -> dict[str, Any]:
-    """A protocol directory's steps per transfer run by pair, from its plan file."""
+def _plan_entry(protocol_dir: Path, key: str) -> Any:
+    """Entry ``key`` of a protocol directory's plan file (None where unreadable)."""
     try:
-        steps = json.loads((protocol_dir / PLAN_FILE).read_text()).get("transfer_steps")
+        return json.loads((protocol_dir / PLAN_FILE).read_text()).get(key)
     except (OSError, json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-        return {}
-    return steps if isinstance(steps, dict) else {}
+        return None
 
 
 def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -> int:
     """Copy ``source``'s finished policy, pairs, model and bank runs of ``pairs`` into
     protocol directory ``out`` where ``out`` has no run of that name yet; returns how
     many were copied. Where both plans give a pair the same steps per transfer run
-    (``paper`` and ``paper-wide``, say), its finished transfer runs are copied too.
+    (``paper`` and ``paper-wide``, say), its finished transfer runs of the methods
+    ``out``'s plan has are copied too.
 
     A copied run is used only where its ``config.json`` hash equals the one the plan of
     ``out`` asks for (``Run.is_done``); any other is redone, as an interrupted run
@@ -583,7 +594,9 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
     name and renamed, so an interrupted copy leaves nothing that looks finished.
     """
     source, out = _stages_source(source, out), Path(out).resolve()
-    source_steps, out_steps = _transfer_steps(source), _transfer_steps(out)
+    source_steps = _plan_entry(source, "transfer_steps") or {}
+    out_steps = _plan_entry(out, "transfer_steps") or {}
+    out_methods = set(_plan_entry(out, "methods") or ())
     copied = 0
     for pair in pairs:
         same_steps = pair in out_steps and source_steps.get(pair) == out_steps[pair]
@@ -591,6 +604,8 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
             stage_dir = source / "runs" / pair / stage
             for result in sorted(stage_dir.glob("*/seed*/result.json")):
                 run = result.parent
+                if stage == "transfer" and transfer_run_method(run.parent.name) not in out_methods:
+                    continue  # a method the plan leaves out
                 target = out / "runs" / run.relative_to(source / "runs")
                 if target.exists():
                     continue
