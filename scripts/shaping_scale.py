@@ -15,6 +15,13 @@ A transfer run whose D on the target task stays near the shuffled level has not 
 the target's shared codes any closer to the source's than chance. The rows are a seeded
 sample, so the numbers are reproducible.
 
+The same rows again, with only one part of the target step replaced by that of the
+shuffled row: its action (its robot state kept), then its robot state (its action kept).
+This says what the target's shared code is about, and so how the target can move D: a
+policy sets its action at once but its state only over the following steps. Where
+swapping the action leaves D at the matched level, the code ignores the action and the
+term rewards where the target is, not what it does.
+
 A second table asks whether D tells a good target from a bad one: for each shaped
 method's evaluation runs, D at the run's last PPO rollout (its logged shaping term over
 −β) against the run's final score, with Spearman's rank correlation over the runs. If
@@ -72,9 +79,15 @@ def shaping_scale(
     model_path: Path, dataset_path: Path, rows: int, seed: int
 ) -> dict[str, dict[str, float]]:
     """D of Eq. 10 on ``rows`` sampled training pairs of the dataset at ``dataset_path``,
-    matched and with the target side shuffled (:func:`matched_and_shuffled`)."""
-    x_s, x_t = load_dataset(dataset_path).model_inputs()
-    return matched_and_shuffled(load_model(model_path).eval(), x_s, x_t, rows, seed)
+    matched and with the target side shuffled (:func:`matched_and_shuffled`), and with
+    only the target's action or robot state shuffled (:func:`target_part_swapped`)."""
+    dataset = load_dataset(dataset_path)
+    x_s, x_t = dataset.model_inputs()
+    model = load_model(model_path).eval()
+    return {
+        **matched_and_shuffled(model, x_s, x_t, rows, seed),
+        **target_part_swapped(model, x_s, x_t, dataset.state_dims[1], rows, seed),
+    }
 
 
 @torch.no_grad()
@@ -92,6 +105,36 @@ def matched_and_shuffled(
     for name, target_rows in (("matched", pick), ("shuffled", shuffled)):
         target = torch.as_tensor(x_t[target_rows], dtype=torch.float32)
         out[name] = distance_stats(model.shaping(source, target).double().numpy())
+    return out
+
+
+@torch.no_grad()
+def target_part_swapped(
+    model: SharedSpaceModel,
+    x_s: np.ndarray,
+    x_t: np.ndarray,
+    state_dim_t: int,
+    rows: int,
+    seed: int,
+) -> dict[str, dict[str, float]]:
+    """D of Eq. 10 on :func:`matched_and_shuffled`'s rows (the same ``seed``) with one
+    part of each target step x_t = [robot state (``state_dim_t``), action] taken from the
+    shuffled row: ``{"action_swapped": stats, "state_swapped": stats}``."""
+    if not 0 < state_dim_t < x_t.shape[1]:
+        raise ValueError(f"state_dim_t {state_dim_t} does not split x_T of width {x_t.shape[1]}")
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
+    shuffled = rng.permutation(pick)
+    source = torch.as_tensor(x_s[pick], dtype=torch.float32)
+    out = {}
+    for name, part in (
+        ("action_swapped", slice(state_dim_t, None)),
+        ("state_swapped", slice(0, state_dim_t)),
+    ):
+        target = x_t[pick].copy()
+        target[:, part] = x_t[shuffled][:, part]
+        d = model.shaping(source, torch.as_tensor(target, dtype=torch.float32))
+        out[name] = distance_stats(d.double().numpy())
     return out
 
 
@@ -215,8 +258,11 @@ def main() -> None:
     summary = json.loads(summary_file.read_text())
     runs_root = args.protocol / "runs"
     result: dict[str, Any] = {"rows": args.rows, "seed": args.seed, "pairs": {}}
-    print("| pair | method | init | D matched: median / mean | D shuffled: median / mean |")
-    print("|---|---|---|---|---|")
+    print(
+        "| pair | method | init | D matched: median / mean | D shuffled: median / mean "
+        "| D, target action swapped: median | D, target state swapped: median |"
+    )
+    print("|---|---|---|---|---|---|---|")
     for pair, entry in summary["pairs"].items():
         dataset = default_dataset_path(pair, runs_root)
         if not dataset.is_file():
@@ -233,7 +279,8 @@ def main() -> None:
             m, s = scale["matched"], scale["shuffled"]
             print(
                 f"| {pair} | {method} | {init} | {m['q50']:.3g} / {m['mean']:.3g} | "
-                f"{s['q50']:.3g} / {s['mean']:.3g} |"
+                f"{s['q50']:.3g} / {s['mean']:.3g} | {scale['action_swapped']['q50']:.3g} | "
+                f"{scale['state_swapped']['q50']:.3g} |"
             )
     print()
     print(

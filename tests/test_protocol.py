@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import torch
 
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
@@ -690,6 +691,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     scale = scales["reacher"]["pved"]
     assert scale["init"] == selection["init"]
     assert 0 <= scale["matched"]["q50"] <= scale["matched"]["q95"]
+    assert {"action_swapped", "state_swapped"} <= set(scale)
     if not methods["pved"]["shared_collapsed"]:
         # a model that learned anything puts a step nearer its own pair than a stranger
         assert scale["matched"]["q50"] < scale["shuffled"]["q50"]
@@ -925,6 +927,40 @@ def test_pairing_signal_refuses_a_corrupt_dataset_in_one_line(tmp_path: Path) ->
     assert res.stderr.strip().count("\n") == 0 and "corrupt" in res.stderr
     usage = _run_script("pairing_signal", "--model", str(bad))  # --model needs --datasets
     assert usage.returncode == 2 and "--datasets" in usage.stderr
+
+
+class _PartCodes:
+    """A stand-in model whose D reads one part of the target step: its first
+    ``state_dim`` columns (a state code) or the rest (an action code)."""
+
+    def __init__(self, part: slice) -> None:
+        self.part = part
+
+    def shaping(self, x_s: torch.Tensor, x_t: torch.Tensor) -> torch.Tensor:
+        return ((x_s[:, self.part] - x_t[:, self.part]) ** 2).sum(1)
+
+
+def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() -> None:
+    import numpy as np
+
+    target_part_swapped = _script("shaping_scale").target_part_swapped
+    matched_and_shuffled = _script("shaping_scale").matched_and_shuffled
+    rng = np.random.default_rng(0)
+    x_t = rng.normal(size=(400, 5)).astype(np.float32)  # 3 state columns, 2 action
+    x_s = x_t + 0.01 * rng.normal(size=x_t.shape).astype(np.float32)
+    for part, unmoved, moved in (
+        (slice(0, 3), "action", "state"),
+        (slice(3, 5), "state", "action"),
+    ):
+        model = _PartCodes(part)
+        swapped = target_part_swapped(model, x_s, x_t, 3, rows=300, seed=1)
+        both = matched_and_shuffled(model, x_s, x_t, rows=300, seed=1)
+        # the same rows as matched_and_shuffled's: the part the code ignores changes nothing
+        assert swapped[f"{unmoved}_swapped"] == both["matched"]
+        assert swapped[f"{moved}_swapped"] == both["shuffled"]
+        assert both["shuffled"]["q50"] > 100 * both["matched"]["q50"]
+    with pytest.raises(ValueError, match="does not split"):
+        target_part_swapped(_PartCodes(slice(0, 3)), x_s, x_t, 5, rows=10, seed=0)
 
 
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
