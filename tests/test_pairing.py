@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from pved.errors import PvedError
-from pved.pairing.align import align, dtw_indices, subsample_indices, time_indices
+from pved.pairing.align import (
+    align,
+    dtw_indices,
+    gait_phase,
+    phase_indices,
+    subsample_indices,
+    time_indices,
+)
 from pved.pairing.dataset import PairedDataset, load_dataset, save_dataset
 
 
@@ -22,7 +29,7 @@ def test_subsample_keeps_shorter_and_spreads_longer() -> None:
     assert i_s.tolist() == i_t.tolist() == [0, 1, 2, 3, 4]
     with pytest.raises(PvedError, match="unknown alignment 'warp'"):
         align("warp", 3, 3)
-    with pytest.raises(PvedError, match="needs a learned shared space"):
+    with pytest.raises(PvedError, match="fitted to the collected episodes"):
         align("dtw", 3, 3)
 
 
@@ -134,3 +141,33 @@ def test_bad_datasets_are_one_line_errors(tmp_path: Path) -> None:
     with pytest.raises(PvedError, match="NaN"):
         save_dataset(tmp_path / "nan.npz", data)
     assert not (tmp_path / "nan.npz").exists()
+
+
+def test_phase_alignment_pairs_the_same_moment_of_two_strides() -> None:
+    # two gaits at 20 steps a second, strides of 0.35 s and 0.5 s (the Humanoid's and the
+    # Ant's on the Slope): by time their phases drift apart, by phase they meet
+    t = np.arange(300) / 20.0
+    phase_s = gait_phase(np.sin(2 * np.pi * t / 0.35))
+    phase_t = gait_phase(np.cos(2 * np.pi * t / 0.5) + 0.1 * np.sin(2 * np.pi * t / 0.25))
+    base = subsample_indices(300, 300)
+
+    def gap(i_s: np.ndarray, i_t: np.ndarray) -> np.ndarray:
+        return np.abs(np.angle(np.exp(1j * (phase_s[i_s] - phase_t[i_t]))))[20:-20]
+
+    assert np.median(gap(*base)) > 1.0  # time pairing: about pi/2 on average
+    i_s, i_t = phase_indices(phase_s, phase_t, base, window=10)
+    assert i_t.tolist() == base[1].tolist()  # every target step kept, once, in order
+    assert np.abs(i_s - base[0]).max() <= 10  # near its time partner
+    # at the same moment of the stride, up to the source's sampling: a 7-step stride
+    # leaves a gap of at most pi / 7 = 0.45 to the nearest step
+    assert np.median(gap(i_s, i_t)) < 0.4
+    # no room to move: the time pairing itself
+    assert phase_indices(phase_s, phase_t, base, window=0)[0].tolist() == base[0].tolist()
+    # the source steps between paired ones are candidates too (a finer source agent)
+    fine = np.arange(0, 300, 3)
+    i_s, _ = phase_indices(phase_s, phase_t, (fine, fine), window=1)
+    assert set(i_s.tolist()) - set(fine.tolist())
+    with pytest.raises(PvedError, match="equal non-empty"):
+        phase_indices(phase_s, phase_t, (np.arange(3), np.arange(4)))
+    with pytest.raises(PvedError, match="finite 1-D"):
+        gait_phase(np.array([1.0, np.nan]))

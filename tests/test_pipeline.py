@@ -183,6 +183,23 @@ def test_dtw_alignment_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     assert 0.0 <= data.header["dtw"][-1]["moved_fraction"] <= 1.0
 
 
+def test_phase_alignment_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_cli(capsys, "collect-pairs", "--runs", tmp_path, "--episodes", "8",
+                             "--align", "phase")  # fmt: skip
+    assert code == 0, err
+    data = load_dataset(Path(out.strip()))
+    phase = data.header["phase"]
+    assert data.header["alignment"] == "phase" and phase["base"] in ("time", "subsample")
+    assert 0 < phase["pc1_variance_source"] <= 1 and 0 < phase["pc1_variance_target"] <= 1
+    assert 0 < phase["moved_fraction"] <= 1  # the two arms do not swing in step
+    for e in range(8):
+        rows = data.episode == e
+        t_s, t_t = data.t_source[rows], data.t_target[rows]
+        # the base pairing's target steps, each once; a source step near its time partner
+        assert t_t.tolist() == list(range(50))
+        assert np.abs(t_s - t_t).max() <= phase["window"]
+
+
 @pytest.mark.parametrize("model", sorted(MODELS))
 def test_every_model_trains_and_shapes_through_the_cli(
     pipeline: Path, tmp_path: Path, model: str, capsys: pytest.CaptureFixture[str]

@@ -352,8 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--align",
-        help="subsample (paper IV.A), time (same physical time) or dtw (rounds of DTW on "
-        "the shared space); default: the pair's",
+        help="subsample (paper IV.A), time (same physical time), dtw (rounds of DTW on "
+        "the shared space) or phase (same moment of the stride, near the same time); "
+        "default: the pair's",
     )
     p.set_defaults(func=_cmd_collect_pairs)
 

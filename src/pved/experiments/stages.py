@@ -34,7 +34,14 @@ from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
-from pved.pairing.align import ALIGNMENTS, LEARNED_ALIGNMENTS, dtw_indices
+from pved.pairing.align import (
+    ALIGNMENTS,
+    LEARNED_ALIGNMENTS,
+    PHASE_WINDOW,
+    dtw_indices,
+    gait_phase,
+    phase_indices,
+)
 from pved.pairing.align import align as align_steps
 from pved.pairing.collect import (
     EpisodePair,
@@ -303,13 +310,21 @@ def collect_pairs(
     # control periods, for alignment by physical time (None for envs without one)
     dt_s, dt_t = getattr(src_env, "dt", None), getattr(tgt_env, "dt", None)
     header.update(dt_source=dt_s, dt_target=dt_t)
-    time_only = "subsample" if align in LEARNED_ALIGNMENTS else align
+    if align in LEARNED_ALIGNMENTS:
+        time_only = "subsample"
+    elif align == "phase":  # re-paired by phase around the same moment
+        time_only = "time" if dt_s is not None and dt_t is not None else "subsample"
+    else:
+        time_only = align
     alignment = [
         align_steps(time_only, len(e_s.obs), len(e_t.obs), dt_s, dt_t) for e_s, e_t in pairs
     ]
     if align == "dtw":
         alignment, rounds = _dtw_rounds(preset, pairs, alignment, header, seed, progress)
         header["dtw"] = rounds
+    if align == "phase":
+        alignment, header["phase"] = _phase_alignment(pairs, alignment, header)
+        header["phase"]["base"] = time_only
     dataset = pairs_to_dataset(
         pairs, alignment, shared_task_keys=preset.shared_task_keys, header=header
     )
@@ -382,6 +397,41 @@ def _dtw_rounds(
         stats.append({"round": float(round_index + 1), "moved_fraction": float(np.mean(changed))})
         alignment = new_alignment
     return alignment, stats
+
+
+def _phase_alignment(
+    pairs: list[EpisodePair],
+    alignment: list[tuple[np.ndarray, np.ndarray]],
+    header: dict[str, Any],
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
+    """Re-pair every episode pair of the time alignment by gait phase
+    (:func:`pved.pairing.align.phase_indices`). Each agent's gait signal is the first
+    principal component of its robot state, standardised over all its episodes' steps;
+    its phase is taken per episode. Returns the new alignment and what it did: the share
+    of the components' variance, and how far (in source steps) a pair's source step moved
+    (mean, and the share of pairs that moved)."""
+    stats: dict[str, Any] = {"window": PHASE_WINDOW}
+    phases: dict[str, list[np.ndarray]] = {}
+    for side, key, column in (("source", "robot_state_indices_source", 0),
+                              ("target", "robot_state_indices_target", 1)):  # fmt: skip
+        idx = np.asarray(header[key])
+        states = [np.asarray(pair[column].obs, dtype=np.float64)[:, idx] for pair in pairs]
+        stacked = np.concatenate(states)
+        mean, scale = stacked.mean(0), stacked.std(0)
+        scale[scale < 1e-8] = 1.0  # a coordinate that never moves carries no gait
+        _, singular, vt = np.linalg.svd((stacked - mean) / scale, full_matrices=False)
+        stats[f"pc1_variance_{side}"] = float(singular[0] ** 2 / (singular**2).sum())
+        phases[side] = [gait_phase(((x - mean) / scale) @ vt[0]) for x in states]
+    new_alignment = [
+        phase_indices(phases["source"][e], phases["target"][e], base)
+        for e, base in enumerate(alignment)
+    ]
+    moved = np.concatenate(
+        [np.abs(new[0] - old[0]) for old, new in zip(alignment, new_alignment, strict=True)]
+    )
+    stats["moved_fraction"] = float(np.mean(moved > 0))
+    stats["mean_source_steps_moved"] = float(moved.mean())
+    return new_alignment, stats
 
 
 def _partner(alignment: tuple[np.ndarray, np.ndarray], length_source: int) -> np.ndarray:

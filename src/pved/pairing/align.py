@@ -8,6 +8,12 @@
   space, as Gupta et al. (2017) align their agents; :func:`dtw_indices` aligns one pair
   given the embeddings, and ``pved.experiments.stages.collect_pairs`` runs the rounds
   (subsample → train → embed → warp → retrain).
+- ``phase``: by gait phase, for walkers whose strides take different times: each pair of
+  the time alignment (``time`` where both control periods are known, else
+  ``subsample``) keeps its target step and takes, among the source steps near its time
+  partner, the one whose gait phase is nearest (:func:`phase_indices`). A gait's phase
+  is read off each agent's first principal component of its standardised robot state
+  (:func:`gait_phase`); the stage fits the components on all episodes.
 """
 
 from __future__ import annotations
@@ -16,9 +22,14 @@ import numpy as np
 
 from pved.errors import PvedError
 
-ALIGNMENTS = ("subsample", "time", "dtw")
+ALIGNMENTS = ("subsample", "time", "dtw", "phase")
 #: Alignments that need a learned shared space (run by the collect-pairs stage).
 LEARNED_ALIGNMENTS = ("dtw",)
+#: Alignments fitted to the collected episodes (run by the collect-pairs stage).
+DATA_ALIGNMENTS = ("dtw", "phase")
+#: ``phase``: how many pairs of the time alignment to either side a step's phase partner
+#: may come from (10 Ant steps are 0.5 s, about one Ant stride on the Slope).
+PHASE_WINDOW = 10
 
 
 def subsample_indices(length_source: int, length_target: int) -> tuple[np.ndarray, np.ndarray]:
@@ -109,6 +120,49 @@ def dtw_indices(
     return path[:, 0].copy(), path[:, 1].copy()
 
 
+def gait_phase(signal: np.ndarray) -> np.ndarray:
+    """The wrapped phase (radians, (L,)) of one episode's 1-D gait signal (L,): the angle
+    of its analytic signal (Hilbert transform) after removing its mean."""
+    from scipy.signal import hilbert
+
+    x = np.asarray(signal, dtype=np.float64)
+    if x.ndim != 1 or not len(x) or not np.isfinite(x).all():
+        raise PvedError(f"a gait signal must be a finite 1-D array, got shape {x.shape}")
+    return np.angle(hilbert(x - x.mean()))
+
+
+def phase_indices(
+    phase_source: np.ndarray,
+    phase_target: np.ndarray,
+    base: tuple[np.ndarray, np.ndarray],
+    window: int = PHASE_WINDOW,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Re-pair the time alignment ``base`` = (idx_source, idx_target) by gait phase.
+
+    Pair k keeps its target step and takes the source step, among those from the time
+    partner of pair k - ``window`` to that of pair k + ``window`` (every source step in
+    that stretch, not only the paired ones), whose wrapped phase in ``phase_source``
+    (L_S,) is nearest on the circle to its target step's in ``phase_target`` (L_T,);
+    ties go to the earliest. So a source step of the same moment of the stride stands in
+    for the one of the same moment of the episode, at most ``window`` pairs away.
+
+    Returns:
+        (idx_source, idx_target), each (P,) int64, P = len(base[0]).
+    """
+    i_s, i_t = (np.asarray(i, dtype=np.int64) for i in base)
+    if i_s.shape != i_t.shape or i_s.ndim != 1 or not len(i_s):
+        raise PvedError(f"a base alignment is two equal non-empty index arrays, got {i_s.shape}")
+    if window < 0:
+        raise PvedError(f"the phase window must be at least 0, got {window}")
+    new_s = np.empty_like(i_s)
+    for k in range(len(i_s)):
+        lo, hi = i_s[max(0, k - window)], i_s[min(len(i_s) - 1, k + window)]
+        candidates = np.arange(min(lo, hi), max(lo, hi) + 1)
+        gap = np.angle(np.exp(1j * (phase_source[candidates] - phase_target[i_t[k]])))
+        new_s[k] = candidates[int(np.argmin(np.abs(gap)))]
+    return new_s, i_t.copy()
+
+
 def align(
     method: str,
     length_source: int,
@@ -124,6 +178,6 @@ def align(
         if dt_source is None or dt_target is None:
             raise PvedError("alignment 'time' needs both agents' control periods")
         return time_indices(length_source, length_target, dt_source, dt_target)
-    if method in LEARNED_ALIGNMENTS:
-        raise PvedError(f"alignment {method!r} needs a learned shared space; use the stage")
+    if method in DATA_ALIGNMENTS:
+        raise PvedError(f"alignment {method!r} is fitted to the collected episodes; use the stage")
     raise PvedError(f"unknown alignment {method!r}; known: {', '.join(ALIGNMENTS)}")
