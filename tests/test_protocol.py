@@ -29,7 +29,7 @@ from pved.experiments.protocol import (
 )
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer_spec
-from pved.runs import atomic_write_json, config_hash, write_claim
+from pved.runs import atomic_write_json, config_hash, release_claim, write_claim
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -435,23 +435,37 @@ def _ran_at(log: str) -> float:
 
 
 def test_runner_leaves_a_claimed_run_to_its_batch_then_makes_it(tmp_path: Path) -> None:
+    import threading
+
     _ship_this_module_to("processes")
     claimed, expired = tmp_path / "claimed" / "seed0", tmp_path / "expired" / "seed0"
-    until = time.time() + 2.0
-    write_claim(claimed, "a batch", until)
+    write_claim(claimed, "a batch", time.time() + 600.0)  # far beyond the test's length
     write_claim(expired, "a batch", time.time() - 1.0)
+    released: list[float] = []
+
+    def batch_comes_back() -> None:
+        # a second after the other run is done (both would have started together, were
+        # the claim ignored), when only the claimed run is left
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "expired.txt").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        released.append(time.time())
+        release_claim(claimed)
+
     jobs = [
         Job("claimed", _ran_at, {"log": str(tmp_path / "claimed.txt")}, run_dir=claimed),
         Job("expired", _ran_at, {"log": str(tmp_path / "expired.txt")}, run_dir=expired),
     ]
-    status = tmp_path / "status.json"
-    report = run_jobs(
-        _FixedPlan(jobs), workers=2, status_path=status, backend="processes", poll_s=0.1
-    )
-    # the runner neither made the claimed run at once nor ended without it
+    # the runner must wait for the claimed run rather than end without it
+    batch = threading.Thread(target=batch_comes_back, daemon=True)
+    batch.start()
+    t0 = time.monotonic()
+    report = run_jobs(_FixedPlan(jobs), workers=2, live=False, backend="processes", poll_s=0.1)
+    batch.join(timeout=130)
     assert set(report.results) == {"claimed", "expired"}
-    assert float((tmp_path / "claimed.txt").read_text()) >= until
-    assert float((tmp_path / "expired.txt").read_text()) < until
+    assert released and float((tmp_path / "claimed.txt").read_text()) >= released[0]
+    assert time.monotonic() - t0 < 300  # by the release, not the claim's expiry
 
 
 def test_live_view_counts_the_runs_away_in_a_batch(tmp_path: Path) -> None:
