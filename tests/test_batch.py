@@ -184,6 +184,11 @@ def test_a_failed_run_is_reported_and_the_rest_go_on(
         (["run", "--batch", "{proto}"], "is not a batch directory"),
         (["export", "--protocol", "{tmp}", "--batch", "{tmp}/b"], "is not a protocol directory"),
         (["export", "--protocol", "{proto}", "--batch", "{proto}"], "exists"),
+        (
+            ["export", "--protocol", "{proto}", "--batch", "{tmp}/b", "--claim-minutes", "-1"],
+            "--claim-minutes must be at least 0",
+        ),
+        (["release", "--protocol", "{tmp}"], "is not a protocol directory"),
     ],
 )
 def test_batch_bad_input_is_one_line(
