@@ -31,6 +31,9 @@ Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``
 ``--datasets A.npz B.npz [--first-episodes N]`` instead, it prints only the first
 measure for each dataset (e.g. the same episodes under two alignments) and writes
 nothing; ``--model M.pt [--bank B.npz]`` adds the second for one model on each dataset.
+``--repair`` adds, for each dataset, the first measure after re-pairing its rows within
+each episode (:data:`REPAIRINGS`): the offline check of pairing by gait phase, with its
+two controls (docs/decisions.md, "Pairing by gait phase").
 """
 
 from __future__ import annotations
@@ -53,7 +56,8 @@ from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model
 from pved.models.train import train_model
-from pved.pairing.dataset import load_dataset
+from pved.pairing.align import PHASE_WINDOW, gait_phase, phase_indices
+from pved.pairing.dataset import PairedDataset, load_dataset
 from pved.runs import atomic_write_json, run_path
 from pved.transfer.source_bank import load_bank
 
@@ -165,6 +169,53 @@ def refit_alpha3(
     return model
 
 
+#: ``--repair``'s re-pairings of a dataset's rows within each episode. Each gives every
+#: target row the source row, among the ``PHASE_WINDOW`` rows to either side of its own
+#: partner (21 candidates), at the nearest gait phase of each agent's first principal
+#: component (``phase``); at the nearest phase of a seeded random direction instead (a
+#: control: how much does choosing among 21 on any signal gain?); or drawn uniformly
+#: (the other control: how much does moving a partner a few steps cost?).
+REPAIRINGS = ("phase", "random-direction phase", "random in window")
+
+
+def repaired_source_rows(dataset: PairedDataset, how: str, seed: int) -> np.ndarray:
+    """The source row (M,) int64 that each target row is paired with after the re-pairing
+    ``how`` (a key of :data:`REPAIRINGS`); the rows of an episode are taken in the target's
+    time order, and a row never leaves its episode.
+
+    The phase is :func:`pved.pairing.align.gait_phase` of the paired rows' robot state,
+    standardised over all rows, projected on the first principal component (or on a
+    seeded random unit direction) and taken per episode; the stage does the same on the
+    agents' every step, so it has more source candidates than these rows offer."""
+    if how not in REPAIRINGS:
+        raise PvedError(f"unknown re-pairing {how!r}; known: {', '.join(REPAIRINGS)}")
+    rng = np.random.default_rng(seed)
+    signals = []
+    for obs, idx in ((dataset.obs_source, dataset.robot_indices_source),
+                     (dataset.obs_target, dataset.robot_indices_target)):  # fmt: skip
+        state = _standardised(np.asarray(obs[:, idx], dtype=np.float64))
+        if how == "phase":
+            direction = np.linalg.svd(state, full_matrices=False)[2][0]
+        else:
+            direction = rng.normal(size=state.shape[1])
+            direction /= np.linalg.norm(direction)
+        signals.append(state @ direction)
+    source_rows = np.arange(len(dataset), dtype=np.int64)
+    for e in np.unique(dataset.episode):
+        rows = np.flatnonzero(dataset.episode == e)
+        rows = rows[np.argsort(dataset.t_target[rows], kind="stable")]
+        local = np.arange(len(rows), dtype=np.int64)
+        if how == "random in window":
+            lo = np.maximum(local - PHASE_WINDOW, 0)
+            hi = np.minimum(local + PHASE_WINDOW, len(rows) - 1)
+            chosen = lo + (rng.random(len(rows)) * (hi - lo + 1)).astype(np.int64)
+        else:
+            phase_s, phase_t = (gait_phase(signal[rows]) for signal in signals)
+            chosen = phase_indices(phase_s, phase_t, (local, local))[0]
+        source_rows[rows] = rows[chosen]
+    return source_rows
+
+
 def compare_datasets(
     paths: list[Path],
     first_episodes: int | None,
@@ -173,11 +224,13 @@ def compare_datasets(
     seed: int,
     model_path: Path | None = None,
     bank_path: Path | None = None,
+    repair: bool = False,
 ) -> None:
     """Print the pairing's R² (:func:`pairing_r2`) of each paired dataset, e.g. the same
     episodes collected under two alignments, restricted to its first episodes if given;
-    with ``model_path``, also that model's :func:`code_information` on each dataset (and
-    on the source bank at ``bank_path``, if given)."""
+    with ``repair``, also after each of :data:`REPAIRINGS`; with ``model_path``, also that
+    model's :func:`code_information` on each dataset (and on the source bank at
+    ``bank_path``, if given)."""
     r2_rows, code_rows = [], []
     model = None if model_path is None else load_model(model_path).eval()
     bank = None if bank_path is None else bank_rows(bank_path).astype(np.float32)
@@ -187,12 +240,20 @@ def compare_datasets(
         keep = np.ones(len(x_s), bool)
         if first_episodes is not None:
             keep = dataset.episode < first_episodes
-        r2 = pairing_r2(x_s[keep], x_t[keep], dataset.episode[keep], rows, seed)
-        r2_rows.append(
-            f"| {path} | {dataset.header.get('alignment')} | {int(keep.sum())} | "
-            f"{r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
-            f"{r2['source_to_shuffled_target']:.3f} |"
-        )
+        pairings: list[tuple[str, np.ndarray | None]] = [("", None)]
+        if repair:
+            pairings += [(how, repaired_source_rows(dataset, how, seed)) for how in REPAIRINGS]
+        for how, source_rows in pairings:
+            x_paired = x_s if source_rows is None else x_s[source_rows]
+            r2 = pairing_r2(x_paired[keep], x_t[keep], dataset.episode[keep], rows, seed)
+            alignment = str(dataset.header.get("alignment")) + (
+                f", re-paired: {how}" if how else ""
+            )
+            r2_rows.append(
+                f"| {path} | {alignment} | {int(keep.sum())} | "
+                f"{r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
+                f"{r2['source_to_shuffled_target']:.3f} |"
+            )
         if model is not None:
             info = code_information(model, x_s[keep], x_t[keep], code_rows_wanted, seed, bank)
             code_rows.append(_code_row(str(path), str(model_path), info))
@@ -250,14 +311,21 @@ def main() -> None:
     parser.add_argument(
         "--bank", type=Path, help="with --model: the source bank on the target task"
     )
+    parser.add_argument(
+        "--repair",
+        action="store_true",
+        help="with --datasets: also the R² after re-pairing rows by phase, and two controls",
+    )
     parser.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
     parser.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
     parser.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    if not args.datasets and (args.model or args.bank or args.first_episodes is not None):
-        parser.error("--model, --bank and --first-episodes go with --datasets")
+    if not args.datasets and (
+        args.model or args.bank or args.repair or args.first_episodes is not None
+    ):
+        parser.error("--model, --bank, --repair and --first-episodes go with --datasets")
     if args.bank and not args.model:
         parser.error("--bank needs --model")
     try:
@@ -277,6 +345,7 @@ def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
             args.seed,
             args.model,
             args.bank,
+            args.repair,
         )
         return
     if args.protocol is None:

@@ -943,6 +943,59 @@ def test_pairing_signal_refuses_a_corrupt_dataset_in_one_line(tmp_path: Path) ->
     assert usage.returncode == 2 and "--datasets" in usage.stderr
 
 
+def test_repairing_by_phase_finds_the_partner_a_lag_took_away(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from pved.pairing.dataset import PairedDataset
+
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # it imports shaping_scale
+    script = _script("pairing_signal")
+    rng = np.random.default_rng(0)
+    episodes, length, stride = 60, 200, 10
+    t = np.tile(np.arange(length), episodes)
+    episode = np.repeat(np.arange(episodes), length)
+    # both agents stride every 10 rows, but each episode's source runs a few rows ahead
+    # or behind, so its time partner is at a random moment of the stride
+    lag = rng.integers(-5, 6, size=episodes)[episode]
+    angle_t, angle_s = 2 * np.pi * t / stride, 2 * np.pi * (t + lag) / stride
+    # the gait moves several coordinates together, so it is each agent's first component
+    # of the standardised state, as on the locomotion pairs
+    obs_t = np.stack([np.cos(angle_t), np.cos(angle_t + 0.3), np.sin(angle_t)], 1)
+    obs_s = np.stack([np.cos(angle_s + k) for k in (0.0, 0.2, 0.4, 1.6)], 1)
+    order = rng.permutation(len(t))  # stored out of time order: the script must sort
+    dataset = PairedDataset(
+        obs_source=obs_s[order],
+        act_source=rng.normal(size=(len(t), 2))[order],
+        obs_target=obs_t[order],
+        act_target=np.cos(angle_t - 0.5)[order, None],
+        episode=episode[order],
+        t_source=t[order],
+        t_target=t[order],
+        task={},
+        header={
+            "robot_state_indices_source": [0, 1, 2, 3],
+            "robot_state_indices_target": [0, 1, 2],
+        },
+    )
+    x_s, x_t = dataset.model_inputs()
+
+    def r2(source_rows: np.ndarray | None = None) -> float:
+        paired = x_s if source_rows is None else x_s[source_rows]
+        return script.pairing_r2(paired, x_t, dataset.episode, len(t), 0)["source_to_target"]
+
+    as_paired = r2()
+    by_phase = script.repaired_source_rows(dataset, "phase", 0)
+    at_random = script.repaired_source_rows(dataset, "random in window", 0)
+    assert as_paired < 0.3 and r2(by_phase) > 0.8 and r2(at_random) < 0.3
+    for rows in (by_phase, at_random):  # a partner never leaves its episode or window
+        assert (dataset.episode[rows] == dataset.episode).all()
+        assert np.abs(dataset.t_source[rows] - dataset.t_target).max() <= 10
+    direction = script.repaired_source_rows(dataset, "random-direction phase", 0)
+    assert (dataset.episode[direction] == dataset.episode).all()
+    with pytest.raises(PvedError, match="unknown re-pairing"):
+        script.repaired_source_rows(dataset, "dtw", 0)
+
+
 class _PartCodes:
     """A stand-in model whose D reads one part of the target step: its first
     ``state_dim`` columns (a state code) or the rest (an action code)."""
