@@ -56,7 +56,7 @@ from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model
 from pved.models.train import train_model
-from pved.pairing.align import PHASE_WINDOW, gait_phase, phase_indices
+from pved.pairing.align import PHASE_WINDOW, first_component, gait_phase, phase_indices
 from pved.pairing.dataset import PairedDataset, load_dataset
 from pved.runs import atomic_write_json, run_path
 from pved.transfer.source_bank import load_bank
@@ -193,13 +193,11 @@ def repaired_source_rows(dataset: PairedDataset, how: str, seed: int) -> np.ndar
     signals = []
     for obs, idx in ((dataset.obs_source, dataset.robot_indices_source),
                      (dataset.obs_target, dataset.robot_indices_target)):  # fmt: skip
-        state = _standardised(np.asarray(obs[:, idx], dtype=np.float64))
-        if how == "phase":
-            direction = np.linalg.svd(state, full_matrices=False)[2][0]
-        else:
-            direction = rng.normal(size=state.shape[1])
+        mean, scale, direction, _ = first_component(obs[:, idx])
+        if how != "phase":
+            direction = rng.normal(size=len(direction))
             direction /= np.linalg.norm(direction)
-        signals.append(state @ direction)
+        signals.append(((obs[:, idx] - mean) / scale) @ direction)
     source_rows = np.arange(len(dataset), dtype=np.int64)
     for e in np.unique(dataset.episode):
         rows = np.flatnonzero(dataset.episode == e)

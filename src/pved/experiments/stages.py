@@ -39,6 +39,7 @@ from pved.pairing.align import (
     LEARNED_ALIGNMENTS,
     PHASE_WINDOW,
     dtw_indices,
+    first_component,
     gait_phase,
     phase_indices,
 )
@@ -416,12 +417,9 @@ def _phase_alignment(
                               ("target", "robot_state_indices_target", 1)):  # fmt: skip
         idx = np.asarray(header[key])
         states = [np.asarray(pair[column].obs, dtype=np.float64)[:, idx] for pair in pairs]
-        stacked = np.concatenate(states)
-        mean, scale = stacked.mean(0), stacked.std(0)
-        scale[scale < 1e-8] = 1.0  # a coordinate that never moves carries no gait
-        _, singular, vt = np.linalg.svd((stacked - mean) / scale, full_matrices=False)
-        stats[f"pc1_variance_{side}"] = float(singular[0] ** 2 / (singular**2).sum())
-        phases[side] = [gait_phase(((x - mean) / scale) @ vt[0]) for x in states]
+        mean, scale, direction, share = first_component(np.concatenate(states))
+        stats[f"pc1_variance_{side}"] = share
+        phases[side] = [gait_phase(((x - mean) / scale) @ direction) for x in states]
     new_alignment = [
         phase_indices(phases["source"][e], phases["target"][e], base)
         for e, base in enumerate(alignment)

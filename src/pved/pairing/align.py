@@ -131,6 +131,21 @@ def gait_phase(signal: np.ndarray) -> np.ndarray:
     return np.angle(hilbert(x - x.mean()))
 
 
+def first_component(states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The first principal component of ``states`` (M, D) after standardising each
+    coordinate (one that never moves keeps scale 1: it carries no gait).
+
+    Returns:
+        (mean (D,), scale (D,), direction (D,) unit, share of the standardised variance
+        it explains); an agent's gait signal is ``((x - mean) / scale) @ direction``.
+    """
+    x = np.asarray(states, dtype=np.float64)
+    mean, scale = x.mean(0), x.std(0)
+    scale[scale < 1e-8] = 1.0
+    _, singular, vt = np.linalg.svd((x - mean) / scale, full_matrices=False)
+    return mean, scale, vt[0], float(singular[0] ** 2 / (singular**2).sum())
+
+
 def phase_indices(
     phase_source: np.ndarray,
     phase_target: np.ndarray,
