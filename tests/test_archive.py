@@ -154,13 +154,26 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
             spec = transfer_spec(**kwargs)
             assert Run(spec.run_dir, spec.config).is_done(), key
             assert "policy" not in json.loads((spec.run_dir / "result.json").read_text())
+    # archived again there: the restored PVED run comes without a policy, as it was
+    # restored, and the archive restores it as done on a third machine
+    again = tmp_path / "again"
+    assert save_archive(lost, again)["written"] == 3  # the model and the two runs
+    tuning = next(rel for rel in runs if "/transfer/pved-beta" in rel)
+    assert not (again / "runs" / tuning / "policy.pt").exists()
+    third = _restore_by_cli(capsys, again, tmp_path / "third", "3 restored, 0 exists")
+    assert set(restored) <= set(third)
+    # a run whose result names a policy that is gone is damaged, not slimmed
+    result_file = lost / "runs" / tuning / "result.json"
+    named = {**json.loads(result_file.read_text()), "policy": str(result_file.parent / "policy.pt")}
+    atomic_write_json(result_file, named)
+    with pytest.raises(PvedError, match="cannot be archived"):
+        save_archive(lost, tmp_path / "damaged")
 
     # an archive and its summary together: the archived run, with its policy, wins
     both = tmp_path / "both"
     save_archive(protocol, both)
     save_summary(protocol, both)
     assert restore_archive(both, tmp_path / "p") == {"restored": 3, "exists": 0}
-    tuning = next(rel for rel in runs if "/transfer/pved-beta" in rel)
     assert (tmp_path / "p/runs" / tuning / "policy.pt").is_file()
 
 

@@ -17,7 +17,7 @@ What is kept, per finished run (a run directory with ``result.json``):
 - transfer runs: the evaluation rows of ``metrics.jsonl`` (the learning curves that
   ``summary.json``, ``pved plot`` and ``pved claims`` read; the PPO loss rows stay in the
   run's TensorBoard file), and ``policy.pt`` for PVED's own runs, which ``make
-  subspaces`` analyses.
+  subspaces`` analyses (a run restored from a summary has none to keep).
 
 Left out: checkpoints and TensorBoard files, unfinished runs, and the pairing datasets and
 source banks (tens to hundreds of MB a pair): the protocol rebuilds those from the shipped
@@ -77,7 +77,10 @@ def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[
     if job_fn is transfer:
         if metrics.exists():
             yield "metrics.jsonl", _eval_rows(metrics.read_bytes())
-        if method == POLICY_KEPT_FOR:
+        # a run restored from a summary has no policy, and its result names none (a
+        # result that names one whose file is gone is damaged, and fails here)
+        result = json.loads((run_dir / "result.json").read_text())
+        if method == POLICY_KEPT_FOR and "policy" in result:
             yield "policy.pt", (run_dir / "policy.pt").read_bytes()
     else:
         if metrics.exists():
