@@ -94,6 +94,10 @@ def test_plan_selects_beta_then_init_then_evaluates(tmp_path: Path) -> None:
     assert {j.priority for j in jobs if "/transfer/" not in j.key} == {0}
     assert {j.priority for j in tuning + init1} == {1}
     assert {j.priority for j in evaluation + ppo} == {2}
+    # the stages are made for the runs on them; of the models, the selected one is kept
+    # for the summary, which reads its validation metrics
+    end_products = {j.key for j in jobs if j.end_product}
+    assert {"reacher/model/pved/init1"} | _keys(tuning + init1 + evaluation + ppo) == end_products
 
 
 def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> None:
@@ -523,6 +527,36 @@ def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
     assert report.reused == ["done"]
     written = json.loads(status.read_text())
     assert (written["env_steps"], written["env_steps_earlier"]) == (1500, 1000)
+
+
+def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: Path) -> None:
+    # a protocol restored on a new machine: the models were not kept, and of the runs
+    # on them, "tuned-a" and "tuned-b" (model-0) and "tuned-c" (model-1) are done
+    _ship_this_module_to("processes")
+    log = str(tmp_path / "ran.txt")
+
+    def job(key: str, deps: tuple[str, ...] = (), end_product: bool = True) -> Job:
+        kwargs = {"log": log, "key": key}
+        return Job(key, _record, kwargs, deps, run_dir=tmp_path / key, end_product=end_product)
+
+    for key in ("tuned-a", "tuned-b", "tuned-c"):
+        (tmp_path / key).mkdir()
+        (tmp_path / key / "result.json").write_text(json.dumps({"made": key}))
+    jobs = [
+        job("model-0", end_product=False),
+        job("tuned-a", ("model-0",)),
+        job("tuned-b", ("model-0",)),
+        job("model-1", end_product=False),
+        job("tuned-c", ("model-1",)),
+        job("evaluation", ("model-1",)),
+    ]
+    report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend="processes")
+    assert not report.failed
+    # model-0 is not remade only to confirm its runs; model-1 is made for the evaluation
+    # run, and the run on it found done is checked against it
+    assert sorted(Path(log).read_text().split()) == ["evaluation", "model-1", "tuned-c"]
+    assert report.results["tuned-a"] == {"made": "tuned-a"} and "model-0" not in report.results
+    assert sorted(report.reused) == ["tuned-a", "tuned-b", "tuned-c"]
 
 
 @pytest.mark.parametrize("backend", ["ray", "processes"])

@@ -336,6 +336,9 @@ class ProtocolPlan:
             },
             deps=deps,
             run_dir=run_path(self.runs, pair, "model", method, init),
+            # made for its transfer runs; the selected one is marked an end product when
+            # it is chosen (the summary reads its validation metrics)
+            end_product=False,
         )
 
     # -- the graph ---------------------------------------------------------------------
@@ -391,6 +394,7 @@ class ProtocolPlan:
                 },
                 deps=policy_deps,
                 run_dir=default_dataset_path(pair, self.runs).parent,
+                end_product=False,  # read only by the models
             )
         )
         assert pairs_key is not None
@@ -411,6 +415,7 @@ class ProtocolPlan:
                     },
                     deps=(dep,) if dep else (),
                     run_dir=self._bank_path(pair, k).parent,
+                    end_product=False,  # read only by the transfer runs of source k
                 )
             )
             assert bank_key is not None
@@ -475,6 +480,8 @@ class ProtocolPlan:
             chosen_init = _best(init_candidates, preset.metric_resolution).init
             state["init"] = chosen_init
             model_key = f"{pair}/model/{method}/init{chosen_init}"
+            chosen = next(i for i, job in enumerate(jobs) if job.key == model_key)
+            jobs[chosen] = dataclasses.replace(jobs[chosen], end_product=True)
             for k in range(b.source_policies):
                 for s in b.evaluation_seeds:
                     add(

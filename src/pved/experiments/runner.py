@@ -18,6 +18,15 @@ job each. A job that raises, or whose worker dies, is submitted again up to ``re
 times, then recorded as failed with its error; jobs that depend on it are reported as
 blocked. Nothing is hidden: the final :class:`RunnerReport` lists both.
 
+Not every job has to run. A job that is not an *end product* (``Job.end_product``: a
+stage made only for the jobs that depend on it, such as a model) runs only when an end
+product still to be made needs it. And a job whose ``result.json`` is on disk is checked
+by running it again (its stage finds it done under the same config) only when its
+dependencies are there or will be made anyway; where one of them is gone and nothing else
+needs it (a protocol restored from its summary on a new machine: its finished tuning
+runs, whose models were not kept), the result on disk is taken as it is, rather than
+remaking hours of models only to confirm runs that are done.
+
 A job whose run directory an exported batch has claimed (:func:`pved.runs.write_claim`)
 is not started while the claim lasts; the runner waits for it rather than ending, and a
 run imported meanwhile is then found done.
@@ -71,6 +80,9 @@ class Job:
         priority: among jobs ready at once, lower goes first (ties: the plan's order). The
             runner submits no more jobs than the backend has workers, so a job that others
             wait on can be put ahead of independent ones (shorter wall time on many cores).
+        end_product: whether the experiment wants the job's result for itself; False for a
+            stage made only for the jobs that depend on it, which runs only while one of
+            them is still to be made (module docstring).
     """
 
     key: str
@@ -81,6 +93,7 @@ class Job:
     run_dir: Path | None = None
     tags: Mapping[str, Any] = field(default_factory=dict)
     priority: int = 0
+    end_product: bool = True
 
 
 class Planner(Protocol):
@@ -105,6 +118,30 @@ class RunnerReport:
     reused: list[str]  # keys of jobs finished by an earlier invocation
     attempts: dict[str, int]
     wall_s: float
+
+
+def _jobs_to_run(
+    known: Mapping[str, Job], results: Mapping[str, Any], on_disk: Mapping[str, Any]
+) -> set[str]:
+    """Keys of the unfinished jobs that are to run (module docstring): the end products
+    not finished on disk and, transitively, what they need; then every job finished on
+    disk whose dependencies are finished or among those, which runs to be checked."""
+    unfinished = {k for k in known if k not in results}
+    todo = [k for k in unfinished if known[k].end_product and k not in on_disk]
+    to_run = set(todo)
+    while todo:
+        for dep in known[todo.pop()].deps:
+            if dep in unfinished and dep not in to_run:
+                to_run.add(dep)
+                todo.append(dep)
+    grown = True
+    while grown:
+        grown = False
+        for key in unfinished & set(on_disk) - to_run:
+            if all(d in results or d in to_run for d in known[key].deps):
+                to_run.add(key)
+                grown = True
+    return to_run
 
 
 def _call(fn: Callable[..., Any], kwargs: Mapping[str, Any]) -> Any:
@@ -291,6 +328,18 @@ class _ProcessExecutor:
             worker.join(timeout=10)
 
 
+def _read_result(run_dir: Path | None) -> Any:
+    """The ``result.json`` in ``run_dir``, or None where there is none (or no run dir)."""
+    if run_dir is None:
+        return None
+    try:
+        return json.loads((run_dir / "result.json").read_text())
+    except FileNotFoundError:
+        return None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return None  # damaged: the job runs, and its stage says what is wrong
+
+
 def _last_step(metrics: Path) -> int:
     """The ``step`` of the last record of a ``metrics.jsonl`` (0 if none yet)."""
     try:
@@ -451,6 +500,8 @@ def _run(
     found_results: dict[str, int] = {}
     in_flight: dict[Any, Job] = {}
     known: dict[str, Job] = {}
+    # each job's result.json as it was when the job became known (None: there was none)
+    on_disk: dict[str, Any] = {}
     view = LiveView(status_path) if live else None
 
     def submit(job: Job) -> None:
@@ -491,12 +542,21 @@ def _run(
         for job in planner.expand(results):
             if job.key not in known:
                 known[job.key] = job
+                on_disk[job.key] = _read_result(job.run_dir)
+        found = {k: r for k, r in on_disk.items() if r is not None}
+        to_run = _jobs_to_run(known, results, found)
+        taken = [k for k in found if k not in results and k not in to_run]
+        if taken:  # finished, and checking them would remake what nothing else needs
+            for key in taken:
+                results[key] = found[key]
+                reused.append(key)
+            continue  # the planner may define more jobs from these results
         running_keys = {j.key for j in in_flight.values()}
         blocked = set(blocked_keys())
         startable = [
             job
             for job in known.values()
-            if job.key not in results
+            if job.key in to_run
             and job.key not in failed
             and job.key not in running_keys
             and job.key not in blocked
@@ -513,7 +573,7 @@ def _run(
         for job in sorted(ready, key=lambda j: j.priority)[: max(0, free)]:
             submit(job)
         if view is not None:
-            pending = len(known) - len(results) - len(failed) - len(in_flight)
+            pending = len(to_run - set(failed) - {j.key for j in in_flight.values()})
             view.update(
                 len(results),
                 len(in_flight),
