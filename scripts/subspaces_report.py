@@ -15,6 +15,13 @@ task, as the paper shows), then runs the three verbs on it:
 
 Outputs go to ``PROTOCOL_DIR/subspaces/`` (``make publish`` copies its figures and
 numbers, not the HTML, into ``docs/protocol/``).
+
+A protocol restored from its committed summary on another machine has that run without
+its policy (``pved archive``). Then the run is made again from its job in the plan, the
+model and bank it needs first where they are not there, and its final score is printed
+beside the recorded one: the same computation on the same code, so the same run, unless
+the machine's arithmetic differs (docs/decisions.md). The restored record is kept until
+the new run has finished, and put back if it fails.
 """
 
 from __future__ import annotations
@@ -24,13 +31,15 @@ import contextlib
 import io
 import json
 import re
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
 from pved.cli import main as pved
 from pved.config import get_preset
-from pved.experiments.protocol import indexed_policy
+from pved.experiments.protocol import ProtocolPlan, _finished_results, indexed_policy
+from pved.experiments.runner import Job
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
 _RUN_KEY = re.compile(
@@ -48,6 +57,38 @@ def pick_run(summary: dict[str, Any], pair: str) -> dict[str, Any]:
     if not runs:
         raise SystemExit(f"no finished PVED evaluation run of {pair} in the summary")
     return max(runs, key=lambda r: float(r[metric]))
+
+
+def _make(job: Job, jobs: dict[str, Job]) -> dict[str, Any]:
+    """Run ``job`` after whichever of its dependencies have no result on disk."""
+    for dep in job.deps:
+        dep_job = jobs[dep]
+        if dep_job.run_dir is None or not (dep_job.run_dir / "result.json").is_file():
+            print(f"making {dep}, which {job.key} needs", flush=True)
+            _make(dep_job, jobs)
+    result: dict[str, Any] = job.fn(**job.kwargs)
+    return result
+
+
+def remake_policy(protocol: Path, key: str, metric: str, recorded: float) -> None:
+    """Make the finished run ``key`` of ``protocol`` again, for the policy its restored
+    record lacks (module docstring); prints its final ``metric`` beside ``recorded``."""
+    plan = ProtocolPlan.load(protocol)
+    jobs = {job.key: job for job in plan.expand(_finished_results(plan))}
+    job = jobs.get(key)
+    if job is None or job.run_dir is None:
+        sys.exit(f"{protocol}: {key} is not a run of its plan")
+    print(f"{key}: restored without its policy; making it again", flush=True)
+    aside = job.run_dir.with_name(job.run_dir.name + ".restored")
+    job.run_dir.rename(aside)
+    try:
+        result = _make(job, jobs)
+    except BaseException:
+        shutil.rmtree(job.run_dir, ignore_errors=True)
+        aside.rename(job.run_dir)
+        raise
+    shutil.rmtree(aside)
+    print(f"{key}: final {metric} {result[f'final/{metric}']:.4f}, recorded {recorded:.4f}")
 
 
 def run(cmd: list[str], stdout: Path | None = None) -> None:
@@ -90,8 +131,11 @@ def main() -> None:
     # under DIR/runs, not the absolute path in the summary: a protocol directory copied
     # back from another machine still works
     target = runs_root / chosen["key"]
+    if not (target / "result.json").is_file():
+        sys.exit(f"{target}: no result.json (the run's files are not in this directory)")
     if not (target / "policy.pt").is_file():
-        sys.exit(f"{target}: no policy.pt (the run's files are not in this directory)")
+        metric = summary["pairs"][pair]["metric"]
+        remake_policy(args.protocol, chosen["key"], metric, float(chosen[metric]))
 
     out = args.protocol / "subspaces"
     out.mkdir(exist_ok=True)

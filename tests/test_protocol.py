@@ -559,6 +559,37 @@ def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: P
     assert sorted(report.reused) == ["tuned-a", "tuned-b", "tuned-c"]
 
 
+class _SelectingPlan:
+    """A restored tuning run, done on disk, on a model that becomes the selected one (an
+    end product) once the run's result is known."""
+
+    def __init__(self, root: Path, log: str):
+        self.root, self.log = root, log
+
+    def expand(self, results: Mapping[str, Any]) -> list[Job]:
+        def job(key: str, deps: tuple[str, ...] = (), end_product: bool = True) -> Job:
+            kwargs = {"log": self.log, "key": key}
+            return Job(key, _record, kwargs, deps, run_dir=self.root / key, end_product=end_product)
+
+        return [job("model", end_product="tuned" in results), job("tuned", ("model",))]
+
+    def expected_steps(self) -> int:
+        return 0
+
+
+def test_runner_makes_a_stage_the_plan_marks_an_end_product_later(tmp_path: Path) -> None:
+    _ship_this_module_to("processes")
+    log = str(tmp_path / "ran.txt")
+    (tmp_path / "tuned").mkdir()
+    (tmp_path / "tuned" / "result.json").write_text("{}")
+    report = run_jobs(_SelectingPlan(tmp_path, log), workers=1, live=False, backend="processes")
+    assert not report.failed
+    # the model is made once selected; the tuning run it was selected by had been taken
+    # as done before, and stays so
+    assert Path(log).read_text().split() == ["model"]
+    assert report.reused == ["tuned"]
+
+
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) -> None:
     # alone in flight: on the process pool a dead worker fails every job the pool held

@@ -541,8 +541,9 @@ def _run(
     while True:
         for job in planner.expand(results):
             if job.key not in known:
-                known[job.key] = job
                 on_disk[job.key] = _read_result(job.run_dir)
+            # the latest definition: a selection can make a stage an end product
+            known[job.key] = job
         found = {k: r for k, r in on_disk.items() if r is not None}
         to_run = _jobs_to_run(known, results, found)
         taken = [k for k in found if k not in results and k not in to_run]
