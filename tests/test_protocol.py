@@ -530,8 +530,9 @@ def test_runner_counts_runs_finished_earlier_apart(tmp_path: Path) -> None:
 
 
 def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: Path) -> None:
-    # a protocol restored on a new machine: the models were not kept, and of the runs
-    # on them, "tuned-a" and "tuned-b" (model-0) and "tuned-c" (model-1) are done
+    # a protocol restored on a new machine: two models were not kept, and of the runs
+    # on them, "tuned-a" and "tuned-b" (model-0) and "tuned-c" (model-1) are done; a
+    # third model was kept, but not the pairs it was trained on
     _ship_this_module_to("processes")
     log = str(tmp_path / "ran.txt")
 
@@ -539,7 +540,7 @@ def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: P
         kwargs = {"log": log, "key": key}
         return Job(key, _record, kwargs, deps, run_dir=tmp_path / key, end_product=end_product)
 
-    for key in ("tuned-a", "tuned-b", "tuned-c"):
+    for key in ("tuned-a", "tuned-b", "tuned-c", "model-2"):
         (tmp_path / key).mkdir()
         (tmp_path / key / "result.json").write_text(json.dumps({"made": key}))
     jobs = [
@@ -549,14 +550,19 @@ def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: P
         job("model-1", end_product=False),
         job("tuned-c", ("model-1",)),
         job("evaluation", ("model-1",)),
+        job("pairs", end_product=False),
+        job("model-2", ("pairs",), end_product=False),
+        job("evaluation-2", ("model-2",)),
     ]
     report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend="processes")
     assert not report.failed
     # model-0 is not remade only to confirm its runs; model-1 is made for the evaluation
-    # run, and the run on it found done is checked against it
-    assert sorted(Path(log).read_text().split()) == ["evaluation", "model-1", "tuned-c"]
+    # run, and the run on it found done is checked against it; model-2 is taken as kept,
+    # and its pairs are not made again
+    ran = sorted(Path(log).read_text().split())
+    assert ran == ["evaluation", "evaluation-2", "model-1", "tuned-c"]
     assert report.results["tuned-a"] == {"made": "tuned-a"} and "model-0" not in report.results
-    assert sorted(report.reused) == ["tuned-a", "tuned-b", "tuned-c"]
+    assert sorted(report.reused) == ["model-2", "tuned-a", "tuned-b", "tuned-c"]
 
 
 class _SelectingPlan:

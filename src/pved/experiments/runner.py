@@ -124,14 +124,16 @@ def _jobs_to_run(
     known: Mapping[str, Job], results: Mapping[str, Any], on_disk: Mapping[str, Any]
 ) -> set[str]:
     """Keys of the unfinished jobs that are to run (module docstring): the end products
-    not finished on disk and, transitively, what they need; then every job finished on
-    disk whose dependencies are finished or among those, which runs to be checked."""
+    not finished on disk and, transitively, what they need that is not on disk either;
+    then every job finished on disk whose dependencies are finished or among those, which
+    runs to be checked. A job on disk whose dependencies are not is taken as it is (a
+    model kept without its dataset)."""
     unfinished = {k for k in known if k not in results}
     todo = [k for k in unfinished if known[k].end_product and k not in on_disk]
     to_run = set(todo)
     while todo:
         for dep in known[todo.pop()].deps:
-            if dep in unfinished and dep not in to_run:
+            if dep in unfinished and dep not in to_run and dep not in on_disk:
                 to_run.add(dep)
                 todo.append(dep)
     grown = True
