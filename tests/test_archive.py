@@ -21,7 +21,7 @@ from pved.errors import PvedError
 from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import transfer, transfer_spec
-from pved.runs import Run, atomic_write_json
+from pved.runs import RESTORED_FROM, Run, atomic_write_json
 
 
 def _protocol_with_two_runs(out: Path) -> Path:
@@ -154,7 +154,11 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
         if key in restored:
             spec = transfer_spec(**kwargs)
             assert Run(spec.run_dir, spec.config).is_done(), key
-            assert "policy" not in json.loads((spec.run_dir / "result.json").read_text())
+            result = json.loads((spec.run_dir / "result.json").read_text())
+            assert "policy" not in result and result[RESTORED_FROM] == str(summary)
+    # summarised again there, the record does not say where this machine got it from
+    save_summary(lost, tmp_path / "again-summary")
+    assert RESTORED_FROM not in (tmp_path / "again-summary" / SUMMARY_FILE).read_text()
     # archived again there: the restored PVED run comes without a policy, as it was
     # restored, and the archive restores it as done on a third machine
     again = tmp_path / "again"

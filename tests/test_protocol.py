@@ -29,7 +29,7 @@ from pved.experiments.protocol import (
 )
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer_spec
-from pved.runs import atomic_write_json, config_hash, release_claim, write_claim
+from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -543,12 +543,16 @@ def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: P
     for key in ("tuned-a", "tuned-b", "tuned-c", "model-2"):
         (tmp_path / key).mkdir()
         (tmp_path / key / "result.json").write_text(json.dumps({"made": key}))
+    # restored from another machine's summary: never checked, even where it could be
+    (tmp_path / "tuned-d").mkdir()
+    (tmp_path / "tuned-d" / "result.json").write_text(json.dumps({RESTORED_FROM: "there"}))
     jobs = [
         job("model-0", end_product=False),
         job("tuned-a", ("model-0",)),
         job("tuned-b", ("model-0",)),
         job("model-1", end_product=False),
         job("tuned-c", ("model-1",)),
+        job("tuned-d", ("model-1",)),
         job("evaluation", ("model-1",)),
         job("pairs", end_product=False),
         job("model-2", ("pairs",), end_product=False),
@@ -562,7 +566,7 @@ def test_runner_takes_a_finished_run_whose_inputs_nothing_else_needs(tmp_path: P
     ran = sorted(Path(log).read_text().split())
     assert ran == ["evaluation", "evaluation-2", "model-1", "tuned-c"]
     assert report.results["tuned-a"] == {"made": "tuned-a"} and "model-0" not in report.results
-    assert sorted(report.reused) == ["model-2", "tuned-a", "tuned-b", "tuned-c"]
+    assert sorted(report.reused) == ["model-2", "tuned-a", "tuned-b", "tuned-c", "tuned-d"]
 
 
 class _SelectingPlan:

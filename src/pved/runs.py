@@ -128,6 +128,13 @@ def safe_torch_load(path: Path) -> Any:
         raise PvedError(f"cannot load {path}: not a pved checkpoint ({first[:120]})") from None
 
 
+#: the ``result.json`` field of a run restored from an archive or summary made on another
+#: machine (its value: where from). Such a run is done as it is: it is not checked
+#: against inputs remade here, which another machine's arithmetic makes differ in their
+#: last digits (docs/decisions.md, "A restored run is not confirmed by remaking its inputs").
+RESTORED_FROM = "restored_from"
+
+
 def repoint_result(run_dir: Path, final_dir: Path) -> None:
     """Point ``result.json``'s paths to the run's own artefacts (``policy``, ``model``,
     ``dataset``, ``bank``), written where the run was made, at ``final_dir``, where a copy

@@ -47,7 +47,7 @@ from typing import Any
 from pved.errors import PvedError
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import train_model, train_policy, transfer
-from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result
+from pved.runs import RESTORED_FROM, atomic_write_bytes, atomic_write_json, repoint_result
 
 RUNS = "runs"
 #: the stages whose finished runs are archived, and the artefact each one's result names
@@ -173,7 +173,9 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
         except (OSError, ValueError, UnicodeDecodeError) as err:
             raise PvedError(f"finished run {job.key} cannot be summarised: {err}") from None
         rel = str(job.run_dir.relative_to(plan.runs))
-        runs[rel] = {"result": results[job.key], "config": config, "curve": curve}
+        # where a run was restored from is this machine's business, not the record's
+        result = {k: v for k, v in results[job.key].items() if k != RESTORED_FROM}
+        runs[rel] = {"result": result, "config": config, "curve": curve}
     written += _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
     text = json.dumps(dict(sorted(runs.items())), indent=1, sort_keys=True) + "\n"
     written += _write_if_changed(out / SUMMARY_FILE, text.encode())
@@ -293,6 +295,8 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
                 repoint_result(copy, dest)
             else:
                 _staged_summary_run(source, copy)
+            result = json.loads((copy / "result.json").read_text())
+            atomic_write_json(copy / "result.json", {**result, RESTORED_FROM: str(archive)})
             dest.parent.mkdir(parents=True, exist_ok=True)
             copy.rename(dest)
             counts["restored"] += 1

@@ -25,7 +25,10 @@ by running it again (its stage finds it done under the same config) only when it
 dependencies are there or will be made anyway; where one of them is gone and nothing else
 needs it (a protocol restored from its summary on a new machine: its finished tuning
 runs, whose models were not kept), the result on disk is taken as it is, rather than
-remaking hours of models only to confirm runs that are done.
+remaking hours of models only to confirm runs that are done. A run restored from another
+machine (its result names where from: :data:`pved.runs.RESTORED_FROM`) is never checked:
+inputs remade here differ from that machine's in their last digits, and checking would
+redo it.
 
 A job whose run directory an exported batch has claimed (:func:`pved.runs.write_claim`)
 is not started while the claim lasts; the runner waits for it rather than ending, and a
@@ -50,7 +53,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from pved.errors import PvedError
-from pved.runs import atomic_write_json, claim_holder
+from pved.runs import RESTORED_FROM, atomic_write_json, claim_holder
 
 #: Environment of every worker: one thread per run (parallelism comes from runs side by
 #: side), headless rendering.
@@ -548,7 +551,11 @@ def _run(
             known[job.key] = job
         found = {k: r for k, r in on_disk.items() if r is not None}
         to_run = _jobs_to_run(known, results, found)
-        taken = [k for k in found if k not in results and k not in to_run]
+        taken = [
+            k
+            for k, r in found.items()
+            if k not in results and (k not in to_run or RESTORED_FROM in r)
+        ]
         if taken:  # finished, and checking them would remake what nothing else needs
             for key in taken:
                 results[key] = found[key]
