@@ -129,10 +129,9 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     code, out, err = run_cli(capsys, "archive", "summary", "--protocol", lost,
                           "--archive", summary)  # fmt: skip
     assert code == 0, err
-    # the tuning run and the PPO run; no model is selected yet
-    assert out.strip().endswith("2 runs, 0 models, 2 written")
+    assert out.strip().endswith("2 runs, 1 written")  # the tuning run and the PPO run
     text = (summary / SUMMARY_FILE).read_text()
-    assert save_summary(lost, summary) == {"runs": 2, "models": 0, "written": 0}
+    assert save_summary(lost, summary) == {"runs": 2, "written": 0}
     assert (summary / SUMMARY_FILE).read_text() == text
     runs = json.loads(text)
     assert list(runs) == sorted(runs) and all("/transfer/" in rel for rel in runs)
@@ -180,44 +179,6 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     save_summary(protocol, both)
     assert restore_archive(both, tmp_path / "p") == {"restored": 3, "exists": 0}
     assert (tmp_path / "p/runs" / tuning / "policy.pt").is_file()
-
-
-@pytest.mark.slow
-def test_a_summary_keeps_the_selected_model_and_restores_it(protocol: Path, tmp_path: Path) -> None:
-    proto = tmp_path / "proto"
-    shutil.copytree(protocol, proto)
-    plan = ProtocolPlan.load(proto)
-    # the rest of PVED's tuning finished (results written here, not made): init 0 wins
-    while "init" not in plan.selection.get("reacher", {}).get("pved", {}):
-        results = _finished_results(plan)
-        tuning = [
-            j
-            for j in plan.expand(results)
-            if "/transfer/pved-beta" in j.key and j.key not in results and j.run_dir
-        ]
-        assert tuning, "the plan selects nothing"
-        for job in tuning:
-            assert job.run_dir is not None
-            job.run_dir.mkdir(parents=True)
-            score = 1.0 if job.tags["init"] == 0 else 0.0
-            fake = {"config_hash": f"fake{job.key}", "final/success_rate": score}
-            atomic_write_json(job.run_dir / "config.json", {"config_hash": fake["config_hash"]})
-            atomic_write_json(job.run_dir / "result.json", {**fake, "final/return_mean": 0.0})
-        _finished_results(plan)
-    summary = tmp_path / "summary"
-    counts = save_summary(proto, summary)
-    assert counts["models"] == 1 and counts["runs"] > 2
-    kept = summary / "runs/reacher/model/pved/seed0"
-    assert sorted(p.name for p in kept.iterdir()) == ["config.json", "model.pt", "result.json"]
-    made = proto / "runs/reacher/model/pved/seed0/model.pt"
-    assert (kept / "model.pt").read_bytes() == made.read_bytes()
-    # another machine gets it back, done, beside the summarised runs
-    elsewhere = tmp_path / "elsewhere"
-    restore_archive(summary, elsewhere)
-    restored = _finished_results(ProtocolPlan.load(elsewhere))
-    assert "reacher/model/pved/init0" in restored and "reacher/pairs" not in restored
-    back = elsewhere / "runs/reacher/model/pved/seed0/model.pt"
-    assert back.read_bytes() == made.read_bytes()
 
 
 @pytest.mark.slow

@@ -26,12 +26,9 @@ policies when a restored plan needs them.
 What is committed is smaller still: ``pved archive summary`` writes the protocol's
 ``protocol.json`` and one file, ``finished-transfer-runs.json``, that maps each finished
 transfer run (by its path under ``runs/``) to its ``result``, ``config`` and evaluation
-``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``), and beside it,
-under ``runs/``, each method's selected model (``config.json``, ``result.json``,
-``model.pt``: about 0.2 MB each), which the evaluation runs and the summary read, and
-which would take a new machine an hour or more to retrain. ``restore`` reads either kind
-of directory; from a summary the runs come back without their policies, and the
-protocol makes again only what the runs still to come need.
+``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``). ``restore``
+reads either kind of directory; from a summary the runs come back without their
+policies, and the protocol makes again only what the runs still to come need.
 """
 
 from __future__ import annotations
@@ -56,8 +53,6 @@ ARTEFACTS = {train_policy: "policy.pt", train_model: "model.pt"}
 POLICY_KEPT_FOR = "pved"
 #: the committed record of a protocol's finished transfer runs (module docstring)
 SUMMARY_FILE = "finished-transfer-runs.json"
-#: what a summary keeps of a selected model, ``result.json`` last (it marks the run whole)
-SELECTED_MODEL_FILES = ("model.pt", "config.json", "result.json")
 #: where a transfer run lives under ``runs/``: ``<pair>/transfer/<run name>/seed<seed>``
 TRANSFER_REL = re.compile(r"[A-Za-z0-9_-]+/transfer/[A-Za-z0-9_.+-]+/seed[0-9]+")
 
@@ -133,36 +128,16 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
 
 
 def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str, int]:
-    """Write the protocol's ``protocol.json``, ``finished-transfer-runs.json`` and
-    selected models (module docstring) into ``summary_dir``; returns counts: ``runs``
-    summarised, ``models`` kept, and ``written`` (the files that changed: 0 when the
-    summary already held them all).
+    """Write the protocol's ``protocol.json`` and ``finished-transfer-runs.json`` (module
+    docstring) into ``summary_dir``; returns counts: ``runs`` summarised and ``written``
+    (1 when the summary changed, 0 when it already held them all).
 
     Keys are sorted and the file indented, so that a commit of a later summary shows the
     runs that finished since as added lines."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     results = _finished_results(plan)
-    jobs = plan.expand(results)
-    out = Path(summary_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    written = 0
-    selected = {
-        f"{pair}/model/{method}/init{state['init']}"
-        for pair, methods in plan.selection.items()
-        for method, state in methods.items()
-        if "init" in state
-    }
-    models = [j for j in jobs if j.key in selected and j.key in results and j.run_dir]
-    for job in models:
-        assert job.run_dir is not None
-        model_dir = out / RUNS / job.run_dir.relative_to(plan.runs)
-        try:
-            files = [(name, (job.run_dir / name).read_bytes()) for name in SELECTED_MODEL_FILES]
-        except OSError as err:
-            raise PvedError(f"selected model {job.key} cannot be summarised: {err}") from None
-        written += sum(_write_if_changed(model_dir / name, c) for name, c in files)
     runs: dict[str, Any] = {}
-    for job in jobs:
+    for job in plan.expand(results):
         if job.fn is not transfer or job.key not in results or job.run_dir is None:
             continue
         try:
@@ -176,10 +151,12 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
         # where a run was restored from is this machine's business, not the record's
         result = {k: v for k, v in results[job.key].items() if k != RESTORED_FROM}
         runs[rel] = {"result": result, "config": config, "curve": curve}
-    written += _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
+    out = Path(summary_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
     text = json.dumps(dict(sorted(runs.items())), indent=1, sort_keys=True) + "\n"
-    written += _write_if_changed(out / SUMMARY_FILE, text.encode())
-    return {"runs": len(runs), "models": len(models), "written": written}
+    written = _write_if_changed(out / SUMMARY_FILE, text.encode())
+    return {"runs": len(runs), "written": int(written)}
 
 
 def _summarised_runs(summary_file: Path) -> dict[str, dict[str, Any]]:
