@@ -277,6 +277,13 @@ def _environment(values: Mapping[str, str]) -> Iterator[None]:
                 os.environ[key] = old
 
 
+def _pool_workers(
+    pool: concurrent.futures.ProcessPoolExecutor,
+) -> list[multiprocessing.process.BaseProcess]:
+    """The worker processes ``pool`` holds now (the pool forgets them once shut down)."""
+    return list((getattr(pool, "_processes", None) or {}).values())
+
+
 class _ProcessExecutor:
     """A local pool of ``workers`` spawned processes (fresh interpreters: no forked torch
     or MuJoCo state). A worker that dies breaks the pool; the jobs it held fail this
@@ -286,6 +293,8 @@ class _ProcessExecutor:
         self.workers = workers or os.cpu_count() or 1
         self.pool = self._new_pool()
         self.pools: dict[Any, concurrent.futures.ProcessPoolExecutor] = {}
+        # the workers of pools replaced after a death, ended with the current pool's
+        self.replaced_workers: list[multiprocessing.process.BaseProcess] = []
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
@@ -314,6 +323,9 @@ class _ProcessExecutor:
             return handle.result()
         except concurrent.futures.process.BrokenProcessPool:
             if pool is self.pool:  # the first of its jobs to report it: replace the pool
+                # its surviving workers are being ended by the pool's own thread, which
+                # a non-waiting shutdown does not wait for: kept, to be joined at the end
+                self.replaced_workers += _pool_workers(self.pool)
                 self.pool.shutdown(wait=False, cancel_futures=True)
                 self.pool = self._new_pool()
             raise RuntimeError("its worker process died (killed, or out of memory)") from None
@@ -324,7 +336,7 @@ class _ProcessExecutor:
         # workers are ended here rather than left to the pool's stop messages: one that
         # missed its message (seen once, in CI on a loaded machine) kept the interpreter
         # from exiting, since multiprocessing joins its non-daemon children at exit.
-        workers = list((getattr(self.pool, "_processes", None) or {}).values())
+        workers = _pool_workers(self.pool) + self.replaced_workers
         self.pool.shutdown(wait=False, cancel_futures=True)
         for worker in workers:
             if worker.is_alive():
