@@ -27,7 +27,13 @@ from pved.experiments.protocol import (
     transfer_run_method,
     transfer_run_name,
 )
-from pved.experiments.runner import Job, resolve_backend, run_jobs
+from pved.experiments.runner import (
+    PORTABLE_BLAS_KERNEL,
+    Job,
+    _blas_kernel_env,
+    resolve_backend,
+    run_jobs,
+)
 from pved.experiments.stages import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 
@@ -334,6 +340,12 @@ def _dies_once(marker: str) -> str:
     return "second life"
 
 
+def _blas_kernel_of_worker() -> str | None:
+    from pved.runs import blas_kernel
+
+    return blas_kernel()
+
+
 def _ship_this_module_to(backend: str) -> None:
     """Ray's workers import functions by module, and this test module is not importable
     there: send its functions by value."""
@@ -628,6 +640,19 @@ def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
     report = run_jobs(_FixedPlan(jobs), workers=2, retries=1, live=False, backend="processes")
     assert not report.failed
     assert multiprocessing.active_children() == []
+
+
+@pytest.mark.parametrize("backend", ["ray", "processes"])
+def test_runner_workers_run_one_blas_kernel_on_every_machine(backend: str) -> None:
+    # OpenBLAS picks its kernel by CPU (SkylakeX on this project's machine, Haswell on
+    # the one before): unpinned, a model retrained on another machine differs
+    if not _blas_kernel_env():
+        pytest.skip("this CPU cannot run the portable kernel, so none is pinned")
+    expected = os.environ.get("OPENBLAS_CORETYPE") or PORTABLE_BLAS_KERNEL
+    _ship_this_module_to(backend)
+    jobs = [Job("k", _blas_kernel_of_worker, {})]
+    report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend=backend)
+    assert report.results == {"k": expected}
 
 
 def test_runner_backend_errors_are_one_line() -> None:

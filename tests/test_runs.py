@@ -16,6 +16,7 @@ from pved.runs import (
     atomic_write_json,
     claim_file,
     claim_holder,
+    blas_kernel,
     config_hash,
     release_claim,
     run_path,
@@ -48,6 +49,8 @@ def test_run_lifecycle_skip_if_done_and_config_change(tmp_path: Path) -> None:
     assert Run(path, {"lr": 1e-4}).is_done()
     config = json.loads((path / "config.json").read_text())
     assert config["config_hash"] == run.hash and "pved_version" in config
+    # the BLAS kernel it ran under, which decides a run's last digits
+    assert config["blas_kernel"] == blas_kernel() and config["blas_kernel"]
     # another config: not done, and its start clears the old run's checkpoints
     other = Run(path, {"lr": 3e-4}, tensorboard=False)
     assert not other.is_done()

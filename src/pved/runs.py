@@ -72,6 +72,19 @@ def git_commit() -> str | None:
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
+def blas_kernel() -> str | None:
+    """The kernel numpy's OpenBLAS runs in this process (``Haswell``, ``SkylakeX``, ...),
+    or None where numpy's BLAS is not OpenBLAS. Runs made under two kernels differ in
+    their last digits, so each run's ``config.json`` records it."""
+    import numpy  # noqa: F401  (the BLAS is found among the loaded libraries)
+    from threadpoolctl import threadpool_info
+
+    for library in threadpool_info():
+        if library.get("internal_api") == "openblas":
+            return library.get("architecture")
+    return None
+
+
 def _umask_mode() -> int:
     """The mode a plainly created file gets (0o666 less the umask): mkstemp's temporary
     files are private (0o600), and results are meant to be read by others too."""
@@ -268,6 +281,7 @@ class Run:
                 "config_hash": self.hash,
                 "pved_version": __version__,
                 "git_commit": git_commit(),
+                "blas_kernel": blas_kernel(),
             },
         )
 
