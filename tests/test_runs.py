@@ -14,9 +14,9 @@ from pved.errors import PvedError
 from pved.runs import (
     Run,
     atomic_write_json,
+    blas_kernel,
     claim_file,
     claim_holder,
-    blas_kernel,
     config_hash,
     release_claim,
     run_path,
