@@ -38,6 +38,9 @@ two controls (docs/decisions.md, "Pairing by gait phase").
 
 from __future__ import annotations
 
+import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
+
+# isort: split
 import argparse
 import dataclasses
 import json

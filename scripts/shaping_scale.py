@@ -46,6 +46,9 @@ Prints a Markdown table and writes ``PROTOCOL_DIR/subspaces/shaping_scale.json``
 
 from __future__ import annotations
 
+import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
+
+# isort: split
 import argparse
 import json
 import sys

@@ -18,6 +18,9 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
+import pved  # noqa: E402, F401  (before numpy loads: it pins OpenBLAS's kernel)
+
+# isort: split
 import argparse  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402

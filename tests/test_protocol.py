@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from pved.blas import kernel_env, loaded_kernel
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import (
@@ -27,13 +28,7 @@ from pved.experiments.protocol import (
     transfer_run_method,
     transfer_run_name,
 )
-from pved.experiments.runner import (
-    PORTABLE_BLAS_KERNEL,
-    Job,
-    _blas_kernel_env,
-    resolve_backend,
-    run_jobs,
-)
+from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 
@@ -341,9 +336,9 @@ def _dies_once(marker: str) -> str:
 
 
 def _blas_kernel_of_worker() -> str | None:
-    from pved.runs import blas_kernel
+    from pved.blas import loaded_kernel
 
-    return blas_kernel()
+    return loaded_kernel()
 
 
 def _ship_this_module_to(backend: str) -> None:
@@ -645,10 +640,12 @@ def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
 @pytest.mark.parametrize("backend", ["ray", "processes"])
 def test_runner_workers_run_one_blas_kernel_on_every_machine(backend: str) -> None:
     # OpenBLAS picks its kernel by CPU (SkylakeX on this project's machine, Haswell on
-    # the one before): unpinned, a model retrained on another machine differs
-    if not _blas_kernel_env():
+    # the one before): unpinned, a model retrained on another machine differs. The
+    # workers run the kernel this process pinned on importing pved, as this one does.
+    if not kernel_env():
         pytest.skip("this CPU cannot run the portable kernel, so none is pinned")
-    expected = os.environ.get("OPENBLAS_CORETYPE") or PORTABLE_BLAS_KERNEL
+    expected = os.environ["OPENBLAS_CORETYPE"]  # PORTABLE_KERNEL, unless set by the caller
+    assert loaded_kernel() == expected  # the test process itself (conftest imports pved)
     _ship_this_module_to(backend)
     jobs = [Job("k", _blas_kernel_of_worker, {})]
     report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend=backend)

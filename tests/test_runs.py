@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
+from pved.blas import loaded_kernel
 from pved.errors import PvedError
 from pved.runs import (
     Run,
     atomic_write_json,
-    blas_kernel,
     claim_file,
     claim_holder,
     config_hash,
@@ -50,7 +50,7 @@ def test_run_lifecycle_skip_if_done_and_config_change(tmp_path: Path) -> None:
     config = json.loads((path / "config.json").read_text())
     assert config["config_hash"] == run.hash and "pved_version" in config
     # the BLAS kernel it ran under, which decides a run's last digits
-    assert config["blas_kernel"] == blas_kernel() and config["blas_kernel"]
+    assert config["blas_kernel"] == loaded_kernel() and config["blas_kernel"]
     # another config: not done, and its start clears the old run's checkpoints
     other = Run(path, {"lr": 3e-4}, tensorboard=False)
     assert not other.is_done()

@@ -7,5 +7,10 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+# Before anything loads numpy: one OpenBLAS kernel on every machine (pved.blas).
+from pved.blas import pin_portable_kernel
+
+pin_portable_kernel()
+
 # Registers the Gymnasium ids; the simulator modules themselves load on first use.
-import pved.envs  # noqa: F401
+import pved.envs  # noqa: E402, F401

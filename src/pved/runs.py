@@ -30,6 +30,7 @@ from typing import Any
 import torch
 
 from pved import __version__
+from pved.blas import loaded_kernel
 from pved.errors import PvedError
 
 CHECKPOINT_DIR = "checkpoints"
@@ -70,19 +71,6 @@ def git_commit() -> str | None:
     except (OSError, subprocess.TimeoutExpired):
         return None
     return out.stdout.strip() or None if out.returncode == 0 else None
-
-
-def blas_kernel() -> str | None:
-    """The kernel numpy's OpenBLAS runs in this process (``Haswell``, ``SkylakeX``, ...),
-    or None where numpy's BLAS is not OpenBLAS. Runs made under two kernels differ in
-    their last digits, so each run's ``config.json`` records it."""
-    import numpy  # noqa: F401  (the BLAS is found among the loaded libraries)
-    from threadpoolctl import threadpool_info
-
-    for library in threadpool_info():
-        if library.get("internal_api") == "openblas":
-            return library.get("architecture")
-    return None
 
 
 def _umask_mode() -> int:
@@ -281,7 +269,7 @@ class Run:
                 "config_hash": self.hash,
                 "pved_version": __version__,
                 "git_commit": git_commit(),
-                "blas_kernel": blas_kernel(),
+                "blas_kernel": loaded_kernel(),
             },
         )
 

@@ -52,40 +52,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from pved.blas import kernel_env
 from pved.errors import PvedError
 from pved.runs import RESTORED_FROM, atomic_write_json, claim_holder
-
-#: OpenBLAS's kernel in every worker whose CPU can run it. OpenBLAS picks a kernel by
-#: CPU when it loads (SkylakeX where there is AVX-512, Haswell where there is AVX2), and
-#: the kernels round differently, so without the pin a bank, pairs dataset or model
-#: remade on another machine differs in its last digits, and the transfer runs after it
-#: by metres (docs/decisions.md, "Protocol workers pin OpenBLAS's kernel"). Haswell's
-#: runs on every x86-64 CPU with AVX2 and FMA.
-PORTABLE_BLAS_KERNEL = "Haswell"
-
-
-def _blas_kernel_env() -> dict[str, str]:
-    """``OPENBLAS_CORETYPE`` for the workers: the caller's own where set, else
-    :data:`PORTABLE_BLAS_KERNEL` on a Linux x86-64 CPU with AVX2 and FMA, else nothing
-    (OpenBLAS's own choice: a forced kernel the CPU lacks dies of an illegal instruction)."""
-    if os.environ.get("OPENBLAS_CORETYPE"):
-        return {"OPENBLAS_CORETYPE": os.environ["OPENBLAS_CORETYPE"]}
-    try:
-        cpuinfo = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return {}
-    flags = next(
-        (
-            line.split(":", 1)[1].split()
-            for line in cpuinfo.splitlines()
-            if line.startswith("flags")
-        ),
-        [],
-    )
-    if {"avx2", "fma"} <= set(flags):
-        return {"OPENBLAS_CORETYPE": PORTABLE_BLAS_KERNEL}
-    return {}
-
 
 #: Environment of every worker: one thread per run (parallelism comes from runs side by
 #: side), one OpenBLAS kernel on every machine, headless rendering.
@@ -93,7 +62,7 @@ WORKER_ENV = {
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
-    **_blas_kernel_env(),
+    **kernel_env(),
     "MUJOCO_GL": os.environ.get("MUJOCO_GL", "osmesa"),
     "PYOPENGL_PLATFORM": os.environ.get("PYOPENGL_PLATFORM", "osmesa"),
 }
