@@ -1,11 +1,11 @@
-"""One OpenBLAS kernel on every machine, so that a run remade elsewhere is the same run.
+"""One OpenBLAS kernel on every machine, so that a stage remade elsewhere computes as before.
 
 OpenBLAS, numpy's BLAS, picks a kernel by CPU when it loads: ``SkylakeX`` where there
 is AVX-512, ``Haswell`` where there is AVX2. The kernels round matrix products
 differently, and PPO's and the models' numpy backends and every policy's forward pass
-are matrix products, so a pairs dataset, bank, model or transfer run remade on another
-machine used to differ in its last digits, and a transfer run by metres
-(docs/decisions.md, "pved pins OpenBLAS's kernel"). Importing :mod:`pved` sets
+are matrix products, so a bank or model remade on another machine used to differ from
+the first, and the transfer runs on it by metres (docs/decisions.md, "pved pins
+OpenBLAS's kernel"; torch's own kernels are not pinned). Importing :mod:`pved` sets
 ``OPENBLAS_CORETYPE=Haswell`` where the CPU runs that kernel and the caller has not set
 one; it takes effect in every process that loads numpy after it (pved's CLI, its
 scripts, the protocol's workers: :data:`pved.experiments.runner.WORKER_ENV`), and in
