@@ -336,8 +336,6 @@ def _dies_once(marker: str) -> str:
 
 
 def _blas_kernel_of_worker() -> str | None:
-    from pved.blas import loaded_kernel
-
     return loaded_kernel()
 
 
