@@ -28,9 +28,14 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from pved.blas import loaded_kernel, loaded_mkl_branch, unpin_mkl_branch  # noqa: E402
 from pved.config import get_preset  # noqa: E402
 from pved.models import evaluate_model, train_model  # noqa: E402
 from pved.runs import Run  # noqa: E402
+
+# pved pins MKL's AVX2 branch on import (pved.blas); the torch peer runs on the machine's
+# own branch, as it would without pved (unless the caller set MKL_CBWR)
+unpin_mkl_branch()
 
 SOURCE_STATE, SOURCE_ACTION = 17, 6  # Walker2d
 TARGET_STATE, TARGET_ACTION = 11, 3  # Hopper
@@ -55,6 +60,7 @@ def main() -> None:
     parser.add_argument("--model", default="pved", help="pved, a pved-* variant, gupta2017")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    print(f"OpenBLAS kernel {loaded_kernel()}, MKL branch {loaded_mkl_branch()}", flush=True)
     x_s, x_t = paired_rows(args.rows, seed=0)
     cfg = get_preset("walker-hopper").model_config(args.model, seed=0)
     dims = (SOURCE_STATE, TARGET_STATE)

@@ -39,9 +39,14 @@ import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ppo_learning import hopper_learning_config  # noqa: E402
+from pved.blas import loaded_kernel, loaded_mkl_branch, unpin_mkl_branch  # noqa: E402
 from pved.envs.gym_adapter import GymnasiumBatch  # noqa: E402
 from pved.envs.hopper_v5 import FRAME_SKIP, HopperV5Batch, gymnasium_hopper_xml  # noqa: E402
 from pved.rl.ppo import PPOConfig, train_ppo  # noqa: E402
+
+# pved pins MKL's AVX2 branch on import (pved.blas); the torch peer runs on the machine's
+# own branch, as it would without pved (unless the caller set MKL_CBWR)
+unpin_mkl_branch()
 
 NUM_ENVS = 16
 N_STEPS = 128
@@ -159,6 +164,7 @@ def main() -> None:
     parser.add_argument("--skip-adapter", action="store_true", help="skip pved+GymnasiumBatch")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    print(f"OpenBLAS kernel {loaded_kernel()}, MKL branch {loaded_mkl_branch()}", flush=True)
     warnings.filterwarnings("ignore")
 
     steps = args.steps

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from pved.blas import kernel_env, loaded_kernel
+from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import (
@@ -335,8 +335,8 @@ def _dies_once(marker: str) -> str:
     return "second life"
 
 
-def _blas_kernel_of_worker() -> str | None:
-    return loaded_kernel()
+def _blas_paths_of_worker() -> tuple[str | None, str | None]:
+    return loaded_kernel(), loaded_mkl_branch()
 
 
 def _ship_this_module_to(backend: str) -> None:
@@ -636,16 +636,21 @@ def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("backend", ["ray", "processes"])
-def test_runner_workers_run_one_blas_kernel_on_every_machine(backend: str) -> None:
+def test_runner_workers_run_one_blas_kernel_and_mkl_branch_everywhere(
+    backend: str,
+) -> None:
     # OpenBLAS picks its kernel by CPU (SkylakeX on this project's machine, Haswell on
     # the one before): unpinned, a model retrained on another machine differs. The
     # workers run the kernel this process pinned on importing pved, as this one does.
+    # Likewise torch's MKL, whose branch decides the QR behind the policies' orthogonal
+    # initialisation.
     if not kernel_env():
         pytest.skip("this CPU cannot run the portable kernel, so none is pinned")
-    expected = os.environ["OPENBLAS_CORETYPE"]  # PORTABLE_KERNEL, unless set by the caller
-    assert loaded_kernel() == expected  # the test process itself (conftest imports pved)
+    # PORTABLE_KERNEL and PORTABLE_MKL_BRANCH, unless set by the caller
+    expected = (os.environ["OPENBLAS_CORETYPE"], os.environ["MKL_CBWR"])
+    assert _blas_paths_of_worker() == expected  # the test process (conftest imports pved)
     _ship_this_module_to(backend)
-    jobs = [Job("k", _blas_kernel_of_worker, {})]
+    jobs = [Job("k", _blas_paths_of_worker, {})]
     report = run_jobs(_FixedPlan(jobs), workers=1, live=False, backend=backend)
     assert report.results == {"k": expected}
 

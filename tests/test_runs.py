@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pved.blas import loaded_kernel
+from pved.blas import loaded_kernel, loaded_mkl_branch
 from pved.errors import PvedError
 from pved.runs import (
     Run,
@@ -51,6 +51,7 @@ def test_run_lifecycle_skip_if_done_and_config_change(tmp_path: Path) -> None:
     assert config["config_hash"] == run.hash and "pved_version" in config
     # the BLAS kernel it ran under, which decides a run's last digits
     assert config["blas_kernel"] == loaded_kernel() and config["blas_kernel"]
+    assert config["mkl_branch"] == loaded_mkl_branch() and config["mkl_branch"]
     # another config: not done, and its start clears the old run's checkpoints
     other = Run(path, {"lr": 3e-4}, tensorboard=False)
     assert not other.is_done()

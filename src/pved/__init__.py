@@ -7,10 +7,11 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-# Before anything loads numpy: one OpenBLAS kernel on every machine (pved.blas).
-from pved.blas import pin_portable_kernel
+# Before anything loads numpy or torch: one OpenBLAS kernel and one MKL branch on every
+# machine (pved.blas).
+from pved.blas import pin_portable_kernels
 
-pin_portable_kernel()
+pin_portable_kernels()
 
 # Registers the Gymnasium ids; the simulator modules themselves load on first use.
 import pved.envs  # noqa: E402, F401

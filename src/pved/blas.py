@@ -1,51 +1,103 @@
-"""One OpenBLAS kernel on every machine, so that a stage remade elsewhere computes as before.
+"""One BLAS code path on every machine, so that a stage remade elsewhere computes as before.
 
-OpenBLAS, numpy's BLAS, picks a kernel by CPU when it loads: ``SkylakeX`` where there
-is AVX-512, ``Haswell`` where there is AVX2. The kernels round matrix products
-differently, and PPO's and the models' numpy backends and every policy's forward pass
-are matrix products, so a bank or model remade on another machine used to differ from
-the first, and the transfer runs on it by metres (docs/decisions.md, "pved pins
-OpenBLAS's kernel"; torch's own kernels are not pinned). Importing :mod:`pved` sets
-``OPENBLAS_CORETYPE=Haswell`` where the CPU runs that kernel and the caller has not set
-one; it takes effect in every process that loads numpy after it (pved's CLI, its
-scripts, the protocol's workers: :data:`pved.experiments.runner.WORKER_ENV`), and in
-none that loaded numpy before.
+Two libraries pick their code by CPU when they load, and round differently on each path:
 
-This module must not import numpy at import time: :mod:`pved`'s ``__init__`` calls
-:func:`pin_portable_kernel` before anything loads OpenBLAS.
+- OpenBLAS, numpy's BLAS, picks a kernel: ``SkylakeX`` where there is AVX-512,
+  ``Haswell`` where there is AVX2. PPO's and the models' numpy backends and every
+  policy's forward pass are matrix products, so a bank or model remade on another
+  machine used to differ from the first, and the transfer runs on it by metres
+  (docs/decisions.md, "pved pins OpenBLAS's kernel").
+- MKL, the LAPACK inside torch's CPU build, picks a branch; the QR decomposition behind
+  the policies' orthogonal initialisation (``torch.nn.init.orthogonal_``) runs through
+  it, so the same seed gave another initial policy on another machine
+  (docs/decisions.md, "pved pins MKL's branch").
+
+Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell`` and ``MKL_CBWR=AVX2`` where the
+CPU runs those paths and the caller has not set them. Each takes effect in every process
+that loads its library after the import (pved's CLI, its scripts, the protocol's
+workers: :data:`pved.experiments.runner.WORKER_ENV`), and in none that loaded it before.
+
+This module must not import numpy or torch at import time: :mod:`pved`'s ``__init__``
+calls :func:`pin_portable_kernels` before anything loads OpenBLAS or MKL.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 from pathlib import Path
 
-#: The kernel pinned: Haswell's runs on every x86-64 CPU with AVX2 and FMA.
+#: OpenBLAS's kernel pinned: Haswell's runs on every x86-64 CPU with AVX2 and FMA.
 PORTABLE_KERNEL = "Haswell"
+#: MKL's conditional-numerical-reproducibility branch pinned, for the same CPUs.
+PORTABLE_MKL_BRANCH = "AVX2"
+
+# MKL's MKL_CBWR_* codes (mkl_service.h), as mkl_cbwr_get returns them; 1 (BRANCH_OFF)
+# is no pin: MKL's own choice by CPU.
+_MKL_BRANCHES = {
+    1: "off",
+    2: "AUTO",
+    3: "COMPATIBLE",
+    4: "SSE2",
+    6: "SSSE3",
+    7: "SSE4_1",
+    8: "SSE4_2",
+    9: "AVX",
+    10: "AVX2",
+    11: "AVX512_MIC",
+    12: "AVX512",
+    13: "AVX512_MIC_E1",
+    14: "AVX512_E1",
+}
+_MKL_CBWR_BRANCH = 1  # mkl_cbwr_get's argument: the branch, not the STRICT flag
 
 
-def kernel_env() -> dict[str, str]:
-    """``OPENBLAS_CORETYPE`` for pved's processes: the caller's own where set, else
-    :data:`PORTABLE_KERNEL` on a Linux x86-64 CPU with AVX2 and FMA, else nothing
-    (OpenBLAS's own choice: a forced kernel the CPU lacks dies of an illegal instruction).
-    """
-    if os.environ.get("OPENBLAS_CORETYPE"):
-        return {"OPENBLAS_CORETYPE": os.environ["OPENBLAS_CORETYPE"]}
+def _cpu_runs_portable_paths() -> bool:
+    """Whether this is a Linux x86-64 CPU with AVX2 and FMA (a forced kernel the CPU
+    lacks dies of an illegal instruction)."""
     try:
         cpuinfo = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return {}
+        return False
     lines = cpuinfo.splitlines()
     flags = next((line.split(":", 1)[1].split() for line in lines if line.startswith("flags")), [])
-    if {"avx2", "fma"} <= set(flags):
-        return {"OPENBLAS_CORETYPE": PORTABLE_KERNEL}
-    return {}
+    return {"avx2", "fma"} <= set(flags)
 
 
-def pin_portable_kernel() -> None:
-    """Set :func:`kernel_env` in ``os.environ``, for OpenBLAS loaded after this call in
-    this process and in every process started from it."""
-    os.environ.update(kernel_env())
+def kernel_env() -> dict[str, str]:
+    """``OPENBLAS_CORETYPE`` and ``MKL_CBWR`` for pved's processes: each the caller's own
+    where set, else :data:`PORTABLE_KERNEL` and :data:`PORTABLE_MKL_BRANCH` on a CPU
+    with AVX2 and FMA, else absent (the library's own choice)."""
+    portable = _cpu_runs_portable_paths()
+    env: dict[str, str] = {}
+    for var, value in (("OPENBLAS_CORETYPE", PORTABLE_KERNEL), ("MKL_CBWR", PORTABLE_MKL_BRANCH)):
+        if os.environ.get(var):
+            env[var] = os.environ[var]
+        elif portable:
+            env[var] = value
+    return env
+
+
+#: The variables :func:`pin_portable_kernels` set itself (not the caller's own).
+_PINNED_HERE: set[str] = set()
+
+
+def pin_portable_kernels() -> None:
+    """Set :func:`kernel_env` in ``os.environ``, for OpenBLAS and MKL loaded after this
+    call in this process and in every process started from it."""
+    env = kernel_env()
+    _PINNED_HERE.update(var for var in env if not os.environ.get(var))
+    os.environ.update(env)
+
+
+def unpin_mkl_branch() -> None:
+    """Leave MKL its own choice by CPU again, where pved chose the branch (not the
+    caller) and MKL has not run yet in this process: for a benchmark whose torch peer
+    (SB3, autograd) should run as it would without pved. The default numpy paths do not
+    go through MKL; a policy's initialisation does."""
+    if "MKL_CBWR" in _PINNED_HERE:
+        os.environ.pop("MKL_CBWR", None)
+        _PINNED_HERE.discard("MKL_CBWR")
 
 
 def loaded_kernel() -> str | None:
@@ -58,3 +110,22 @@ def loaded_kernel() -> str | None:
         if library.get("internal_api") == "openblas":
             return library.get("architecture")
     return None
+
+
+def loaded_mkl_branch() -> str | None:
+    """The branch torch's MKL runs in this process (``AVX2``, ``AVX512``, ``off`` where
+    none is pinned, ...), or None where torch carries no MKL that says. Each run's
+    ``config.json`` records it.
+
+    torch links MKL into ``libtorch_cpu`` and exports its service function under the
+    internal name ``mkl_serv_cbwr_get``; asking it also settles the branch, from
+    ``MKL_CBWR``, if MKL has not run yet."""
+    import torch
+
+    library = Path(torch.__file__).parent / "lib" / "libtorch_cpu.so"
+    try:
+        cbwr_get = ctypes.CDLL(str(library)).mkl_serv_cbwr_get
+    except (OSError, AttributeError):
+        return None
+    code = int(cbwr_get(_MKL_CBWR_BRANCH))
+    return _MKL_BRANCHES.get(code, str(code))

@@ -30,7 +30,7 @@ from typing import Any
 import torch
 
 from pved import __version__
-from pved.blas import loaded_kernel
+from pved.blas import loaded_kernel, loaded_mkl_branch
 from pved.errors import PvedError
 
 CHECKPOINT_DIR = "checkpoints"
@@ -270,6 +270,7 @@ class Run:
                 "pved_version": __version__,
                 "git_commit": git_commit(),
                 "blas_kernel": loaded_kernel(),
+                "mkl_branch": loaded_mkl_branch(),
             },
         )
 
