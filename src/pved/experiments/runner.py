@@ -345,6 +345,9 @@ class _ProcessExecutor:
                 worker.terminate()
         for worker in workers:
             worker.join(timeout=10)
+            if worker.is_alive():  # still there (seen once more in CI): no more asking
+                worker.kill()
+                worker.join(timeout=10)
 
 
 def _read_result(run_dir: Path | None) -> Any:
