@@ -188,6 +188,10 @@ def test_a_failed_run_is_reported_and_the_rest_go_on(
             ["export", "--protocol", "{proto}", "--batch", "{tmp}/b", "--claim-minutes", "-1"],
             "--claim-minutes must be at least 0",
         ),
+        (
+            ["export", "--protocol", "{proto}", "--batch", "{tmp}/b", "--max-input-mib", "0"],
+            "--max-input-mib must be more than 0",
+        ),
         (["release", "--protocol", "{tmp}"], "is not a protocol directory"),
     ],
 )
@@ -237,6 +241,25 @@ def test_one_batch_serves_several_protocols(protocol: Path, tmp_path: Path) -> N
     with pytest.raises(PvedError, match="same name"):
         export_batch([walker, again], tmp_path / "clash")
     assert not (tmp_path / "clash").exists()
+
+
+@pytest.mark.slow
+def test_export_passes_over_runs_whose_inputs_do_not_fit(protocol: Path, tmp_path: Path) -> None:
+    # a transport with a size limit (the device machine's 64 MiB) takes the runs whose
+    # models and banks fit; PPO's runs need none
+    every = export_batch(protocol, tmp_path / "all", claim_minutes=0)
+    carried = json.loads((tmp_path / "all" / BATCH_FILE).read_text())["inputs"]
+    assert len(carried) == 2  # the seed-0 model and bank
+    sizes = sum((tmp_path / "all" / "runs" / rel).stat().st_size for rel in carried)
+    ppo = [k for k in every if "/transfer/ppo/" in k]
+    assert ppo and len(ppo) < len(every)
+
+    small = export_batch(protocol, tmp_path / "small", limit=2, max_input_bytes=sizes - 1)
+    assert small == ppo[:2]
+    assert json.loads((tmp_path / "small" / BATCH_FILE).read_text())["inputs"] == {}
+    # the runs passed over are not claimed: the next export, with room, takes them
+    fits = export_batch(protocol, tmp_path / "fits", max_input_bytes=sizes, claim_minutes=0)
+    assert fits == [k for k in every if k not in small]
 
 
 @pytest.mark.slow

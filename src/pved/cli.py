@@ -200,6 +200,9 @@ def _cmd_batch(args: argparse.Namespace) -> None:
             limit=args.limit,
             skip=args.skip,
             claim_minutes=args.claim_minutes,
+            max_input_bytes=(
+                None if args.max_input_mib is None else int(args.max_input_mib * 2**20)
+            ),
         )
         print(f"{args.batch}: {len(keys)} runs")
     elif args.action == "release":
@@ -549,6 +552,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=60.0,
         help="claim the exported runs this long: a protocol running here leaves them to "
         "the batch (default 60; 0: no claim)",
+    )
+    a.add_argument(
+        "--max-input-mib",
+        type=float,
+        help="the models and banks carried at most this many MiB in all: runs whose inputs "
+        "do not fit are passed over for later ones (a transport with a size limit)",
     )
     a = actions.add_parser("release", help="end a batch's claims on the runs it did not send back")
     a.add_argument("--protocol", type=Path, required=True, help="the protocol directory")

@@ -115,6 +115,7 @@ def export_batch(
     limit: int | None = None,
     skip: int = 0,
     claim_minutes: float = 60.0,
+    max_input_bytes: int | None = None,
 ) -> list[str]:
     """Write the protocol's transfer runs that can start now and have not started here
     (no run directory, no other batch's claim) into ``batch_dir``, in the order the
@@ -126,6 +127,12 @@ def export_batch(
     it twice; importing a run, or :func:`release_batch`, ends its claim. ``skip``: leave
     the first ``skip`` out anyway (for a protocol started before claims existed).
     ``batch_dir`` must not exist: a batch is written once, then run and imported.
+
+    ``max_input_bytes``: the models and banks the batch carries at most this many bytes
+    in all (a transport with a size limit: the device machine's 64 MiB, working tree
+    included). A run whose inputs would go past it is passed over, unclaimed, and later
+    runs whose inputs the batch already carries (or that need none) are taken instead,
+    up to ``limit``.
 
     Several protocol directories (of different pairs) make one batch, so that one pool
     of workers serves them all: ``limit`` and ``skip`` apply to each protocol, and their
@@ -143,6 +150,9 @@ def export_batch(
         raise PvedError(f"--skip must be at least 0, not {skip}")
     if not claim_minutes >= 0:
         raise PvedError(f"--claim-minutes must be at least 0, not {claim_minutes}")
+    if max_input_bytes is not None and max_input_bytes < 1:
+        raise PvedError(f"--max-input-mib must be more than 0, not {max_input_bytes / 2**20}")
+    input_bytes = 0  # of the inputs taken so far, all protocols
     now = time.time()
     per_protocol: list[list[dict[str, Any]]] = []
     claims: list[Path] = []  # the exported runs' directories in their protocols
@@ -163,20 +173,32 @@ def export_batch(
         ]
         ready.sort(key=lambda job: job.priority)  # stable: the plan's order within a priority
         jobs: list[dict[str, Any]] = []
-        for job in ready[skip:][:limit]:
+        for job in ready[skip:]:
+            if limit is not None and len(jobs) >= limit:
+                break
             assert job.run_dir is not None
             kwargs = {k: v for k, v in job.kwargs.items() if k not in ("runs_root", "progress")}
+            new_inputs: dict[str, Path] = {}  # this run's inputs the batch lacks so far
             for name in PATH_ARGS:
                 if name in kwargs:
                     rel = _relative(Path(kwargs[name]), plan.runs, name)
                     kwargs[name] = rel
+                    if rel not in sources:
+                        new_inputs[rel] = plan.runs / rel
+            added = sum(path.stat().st_size for path in new_inputs.values())
+            if max_input_bytes is not None and input_bytes + added > max_input_bytes:
+                continue
+            for name in PATH_ARGS:
+                if name in kwargs:
+                    rel = kwargs[name]
                     digest = file_digest(plan.runs / rel)
                     if inputs.setdefault(rel, digest) != digest:
                         raise PvedError(
                             f"two protocols have different files at {rel}; "
                             "export protocols of one pair in separate batches"
                         )
-                    sources[rel] = plan.runs / rel
+            sources.update(new_inputs)
+            input_bytes += added
             jobs.append(
                 {
                     "key": job.key,
