@@ -137,3 +137,28 @@ def test_a_claim_holds_until_it_expires_and_a_damaged_one_holds_nothing(tmp_path
     for damaged in ("{", '{"holder": 3, "until": 1e12}', '{"holder": "x"}', "[]"):
         claim_file(run_dir).write_text(damaged)
         assert claim_holder(run_dir, now=0.0) is None
+
+
+def test_a_resumed_run_keeps_the_provenance_of_its_earlier_starts(tmp_path: Path) -> None:
+    # a run started before the MKL pin (no mkl_branch field) on another machine,
+    # then resumed here twice: each earlier start stays on record, oldest first
+    run = Run(tmp_path / "r", {"lr": 1e-4}, tensorboard=False)
+    run.path.mkdir(parents=True)
+    earlier = {"config_hash": run.hash, "pved_version": "0.1.0", "git_commit": "abc",
+               "blas_kernel": "SkylakeX"}  # fmt: skip
+    atomic_write_json(run.path / "config.json", {"config": {"lr": 1e-4}, **earlier})
+    run.start()
+    run.start()
+    config = json.loads((run.path / "config.json").read_text())
+    assert config["previous_starts"][0] == {
+        "pved_version": "0.1.0",
+        "git_commit": "abc",
+        "blas_kernel": "SkylakeX",
+        "mkl_branch": None,
+    }
+    assert config["previous_starts"][1]["mkl_branch"] == loaded_mkl_branch()
+    assert len(config["previous_starts"]) == 2
+    assert config["blas_kernel"] == loaded_kernel()
+    # another config's start is a new run, with no history
+    Run(run.path, {"lr": 3e-4}, tensorboard=False).start()
+    assert "previous_starts" not in json.loads((run.path / "config.json").read_text())

@@ -197,6 +197,15 @@ def release_claim(run_dir: Path, holder: str | None = None) -> bool:
     return True
 
 
+def _provenance(config_record: Mapping[str, Any]) -> dict[str, Any]:
+    """What a ``config.json`` says of the process that wrote it: pved's version and
+    commit, OpenBLAS's kernel, MKL's branch (None where a record predates the field)."""
+    return {
+        key: config_record.get(key)
+        for key in ("pved_version", "git_commit", "blas_kernel", "mkl_branch")
+    }
+
+
 def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:
     """``<root>/<pair>/<stage>/<name>/seed<k>``."""
     return Path(root) / pair / stage / name / f"seed{seed}"
@@ -247,15 +256,26 @@ class Run:
     def start(self) -> None:
         """Create the directory and write ``config.json``. A previous run with another
         config hash and no result is cleared of its checkpoints and metrics, so that it
-        cannot be resumed into the new config."""
+        cannot be resumed into the new config. A previous start of this same config (a
+        run resumed, perhaps on another machine or under another commit) is kept in
+        ``previous_starts``, oldest first (whether or not a start got as far as a
+        checkpoint): what decides a run's last digits (the commit,
+        the BLAS kernel, MKL's branch) may differ between the parts of a resumed run,
+        and the top-level fields only describe the latest start."""
         self.path.mkdir(parents=True, exist_ok=True)
         config_file = self.path / "config.json"
+        previous_starts: list[dict[str, Any]] = []
         if config_file.exists():
             try:
-                old = json.loads(config_file.read_text()).get("config_hash")
-            except (OSError, json.JSONDecodeError):
-                old = None
-            if old != self.hash:
+                previous = dict(json.loads(config_file.read_text()))
+            except (OSError, json.JSONDecodeError, TypeError, ValueError):
+                previous = {}
+            old = previous.get("config_hash")
+            if old == self.hash:
+                earlier = previous.get("previous_starts")
+                earlier = earlier if isinstance(earlier, list) else []
+                previous_starts = [*earlier, _provenance(previous)]
+            else:
                 for ckpt in self.checkpoint_dir.glob("*.pt"):
                     ckpt.unlink()
                 (self.path / "metrics.jsonl").unlink(missing_ok=True)
@@ -271,6 +291,7 @@ class Run:
                 "git_commit": git_commit(),
                 "blas_kernel": loaded_kernel(),
                 "mkl_branch": loaded_mkl_branch(),
+                **({"previous_starts": previous_starts} if previous_starts else {}),
             },
         )
 
