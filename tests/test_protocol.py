@@ -335,6 +335,12 @@ def _dies_once(marker: str) -> str:
     return "second life"
 
 
+def _deaf_to_sigterm(marker: str) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    Path(marker).write_text("deaf")
+    time.sleep(120)
+
+
 def _blas_paths_of_worker() -> tuple[str | None, str | None]:
     return loaded_kernel(), loaded_mkl_branch()
 
@@ -635,6 +641,34 @@ def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
     report = run_jobs(_FixedPlan(jobs), workers=2, retries=1, live=False, backend="processes")
     assert not report.failed
     assert set(multiprocessing.active_children()) - before == set()
+
+
+def test_process_runner_kills_a_worker_deaf_to_sigterm(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # shutdown asks a worker to end (SIGTERM), and one that does not within the grace
+    # period is killed: left alive it would keep the interpreter from exiting
+    from pved.experiments import runner
+
+    monkeypatch.setattr(runner, "WORKER_STOP_GRACE_S", 1.0)
+    executor = runner._ProcessExecutor(1)
+    marker = tmp_path / "deaf"
+    executor.submit(_deaf_to_sigterm, {"marker": str(marker)})
+    workers: list[Any] = []
+    try:
+        deadline = time.monotonic() + 120
+        while not marker.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert marker.exists(), "the worker never started the job"
+        workers = runner._pool_workers(executor.pool)
+        executor.shutdown()
+        assert workers and not any(worker.is_alive() for worker in workers)
+        assert workers[0].exitcode == -signal.SIGKILL  # it ignored SIGTERM
+    finally:
+        for worker in workers or runner._pool_workers(executor.pool):
+            if worker.is_alive():
+                worker.kill()
+                worker.join()
 
 
 @pytest.mark.parametrize("backend", ["ray", "processes"])

@@ -167,6 +167,9 @@ BACKENDS = ("auto", "ray", "processes")
 #: this (``nice -n 19 pved protocol ...``) keeps its own niceness for its workers.
 WORKER_NICENESS = 15
 
+#: Seconds a ``processes`` worker gets to end after SIGTERM at shutdown, before SIGKILL.
+WORKER_STOP_GRACE_S = 10.0
+
 
 def resolve_backend(backend: str, address: str | None = None) -> str:
     """``ray`` or ``processes`` for ``backend``; :class:`PvedError` when it cannot run here."""
@@ -344,10 +347,10 @@ class _ProcessExecutor:
             if worker.is_alive():
                 worker.terminate()
         for worker in workers:
-            worker.join(timeout=10)
+            worker.join(timeout=WORKER_STOP_GRACE_S)
             if worker.is_alive():  # still there (seen once more in CI): no more asking
                 worker.kill()
-                worker.join(timeout=10)
+                worker.join(timeout=WORKER_STOP_GRACE_S)
 
 
 def _read_result(run_dir: Path | None) -> Any:
