@@ -14,10 +14,12 @@ from pved.blas import loaded_kernel, loaded_mkl_branch
 from pved.errors import PvedError
 from pved.runs import (
     Run,
+    _read_git_commit,
     atomic_write_json,
     claim_file,
     claim_holder,
     config_hash,
+    git_commit,
     release_claim,
     run_path,
     safe_torch_load,
@@ -162,3 +164,15 @@ def test_a_resumed_run_keeps_the_provenance_of_its_earlier_starts(tmp_path: Path
     # another config's start is a new run, with no history
     Run(run.path, {"lr": 3e-4}, tensorboard=False).start()
     assert "previous_starts" not in json.loads((run.path / "config.json").read_text())
+
+
+def test_a_run_records_the_commit_its_process_imported(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a pool worker outlives commits made while it runs: what it ran is what it imported
+    assert git_commit() == _read_git_commit()  # the test's checkout has not moved since
+    monkeypatch.setattr("pved.runs._read_git_commit", lambda: "a commit made since")
+    run = Run(tmp_path / "r", {"x": 1}, tensorboard=False)
+    run.start()
+    recorded = json.loads((run.path / "config.json").read_text())["git_commit"]
+    assert recorded == git_commit() != "a commit made since"

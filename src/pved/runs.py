@@ -57,8 +57,8 @@ def config_hash(config: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def git_commit() -> str | None:
-    """The commit of the source tree pved runs from, when it is a git checkout."""
+def _read_git_commit() -> str | None:
+    """HEAD of the git checkout this file lies in (None outside one, or without git)."""
     try:
         out = subprocess.run(
             ["git", "rev-parse", "HEAD"],
@@ -71,6 +71,17 @@ def git_commit() -> str | None:
     except (OSError, subprocess.TimeoutExpired):
         return None
     return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+# Read once, when the module loads: a long-lived process (a protocol's pool worker) runs
+# the code it imported, whatever HEAD says by the time it starts its tenth run.
+_COMMIT_AT_IMPORT = _read_git_commit()
+
+
+def git_commit() -> str | None:
+    """The commit of the source tree pved runs from, when it is a git checkout: HEAD as
+    it was when this process imported pved, so that a run records the code it ran."""
+    return _COMMIT_AT_IMPORT
 
 
 def _umask_mode() -> int:
