@@ -243,6 +243,7 @@ class Run:
         self.hash = config_hash(self.config)
         self._use_tensorboard = tensorboard
         self._writer: Any = None
+        self._started = False
 
     # -- state queries -------------------------------------------------------------
     @property
@@ -272,7 +273,12 @@ class Run:
         ``previous_starts``, oldest first (whether or not a start got as far as a
         checkpoint): what decides a run's last digits (the commit,
         the BLAS kernel, MKL's branch) may differ between the parts of a resumed run,
-        and the top-level fields only describe the latest start."""
+        and the top-level fields only describe the latest start. Starting the same
+        :class:`Run` object again (a stage and the trainer it calls both start it) does
+        nothing more."""
+        if self._started:
+            return
+        self._started = True
         self.path.mkdir(parents=True, exist_ok=True)
         config_file = self.path / "config.json"
         previous_starts: list[dict[str, Any]] = []
