@@ -45,6 +45,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping
@@ -289,6 +290,13 @@ def _pool_workers(
     return list((getattr(pool, "_processes", None) or {}).values())
 
 
+def _pool_thread(pool: concurrent.futures.ProcessPoolExecutor) -> list[threading.Thread]:
+    """The thread that manages ``pool``'s workers, if started (the pool forgets it once
+    shut down)."""
+    thread = getattr(pool, "_executor_manager_thread", None)
+    return [thread] if thread is not None else []
+
+
 class _ProcessExecutor:
     """A local pool of ``workers`` spawned processes (fresh interpreters: no forked torch
     or MuJoCo state). A worker that dies breaks the pool; the jobs it held fail this
@@ -300,6 +308,8 @@ class _ProcessExecutor:
         self.pools: dict[Any, concurrent.futures.ProcessPoolExecutor] = {}
         # the workers of pools replaced after a death, ended with the current pool's
         self.replaced_workers: list[multiprocessing.process.BaseProcess] = []
+        # those pools' own threads, which reap the same workers (see shutdown)
+        self.replaced_threads: list[threading.Thread] = []
 
     def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
         return concurrent.futures.ProcessPoolExecutor(
@@ -331,6 +341,7 @@ class _ProcessExecutor:
                 # its surviving workers are being ended by the pool's own thread, which
                 # a non-waiting shutdown does not wait for: kept, to be joined at the end
                 self.replaced_workers += _pool_workers(self.pool)
+                self.replaced_threads += _pool_thread(self.pool)
                 self.pool.shutdown(wait=False, cancel_futures=True)
                 self.pool = self._new_pool()
             raise RuntimeError("its worker process died (killed, or out of memory)") from None
@@ -342,6 +353,7 @@ class _ProcessExecutor:
         # missed its message (seen once, in CI on a loaded machine) kept the interpreter
         # from exiting, since multiprocessing joins its non-daemon children at exit.
         workers = _pool_workers(self.pool) + self.replaced_workers
+        threads = _pool_thread(self.pool) + self.replaced_threads
         self.pool.shutdown(wait=False, cancel_futures=True)
         for worker in workers:
             if worker.is_alive():
@@ -351,6 +363,12 @@ class _ProcessExecutor:
             if worker.is_alive():  # still there (seen once more in CI): no more asking
                 worker.kill()
                 worker.join(timeout=WORKER_STOP_GRACE_S)
+        # Each pool's thread waits on the same workers. Whichever thread reaps a worker
+        # records its exit code a moment later, and until then the other finds no such
+        # child and multiprocessing counts the worker alive (CI saw one "started" after
+        # this returned). The pools' threads end once their workers are reaped.
+        for thread in threads:
+            thread.join(timeout=WORKER_STOP_GRACE_S)
 
 
 def _read_result(run_dir: Path | None) -> Any:
