@@ -444,6 +444,25 @@ def test_live_view_rate_leaves_out_the_steps_of_earlier_calls(
     assert second["eta_s"] == pytest.approx(1_995_000 / 250)
 
 
+def test_live_view_eta_past_a_day_keeps_its_hours(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    import io
+
+    from pved.experiments import runner
+
+    clock = iter([0.0, 0.0, 100.0])
+    monkeypatch.setattr(runner.time, "monotonic", lambda: next(clock))
+    stream = io.StringIO()
+    view = runner.LiveView(tmp_path / "status.json", stream=stream)
+    view.update(0, 2, 0, 9, 0, 1)  # clock 0: the rate's starting point
+    # 1,000 steps/s with 112,540,000 steps to go: 31 h 15 min 40 s, not 07:15:40
+    status = view.update(0, 2, 0, 9, 100_000, 112_640_000, force=True)
+    assert status["eta_s"] == pytest.approx(112_540)
+    assert stream.getvalue().rstrip().endswith("ETA 31:15:40")
+    assert runner._duration_text(59.6) == "00:01:00"
+
+
 def _ran_at(log: str) -> float:
     Path(log).write_text(repr(time.time()))
     return time.time()

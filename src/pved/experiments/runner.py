@@ -401,6 +401,13 @@ def _last_step(metrics: Path) -> int:
     return 0
 
 
+def _duration_text(seconds: float) -> str:
+    """``seconds`` as hours:minutes:seconds, the hours uncapped: a protocol of a day and
+    a half reads 36:00:00 (a clock format wraps it to 12:00:00)."""
+    whole = max(0, round(seconds))
+    return f"{whole // 3600:02d}:{whole // 60 % 60:02d}:{whole % 60:02d}"
+
+
 class LiveView:
     """Runs done / running / failed, env steps per second and ETA: one line rewritten
     in place on a terminal, a line every ``every_s`` seconds otherwise; also written to
@@ -457,7 +464,7 @@ class LiveView:
         }
         if force or now - self.last >= self.every_s:
             self.last = now
-            eta_text = "?" if eta is None else time.strftime("%H:%M:%S", time.gmtime(eta))
+            eta_text = "?" if eta is None else _duration_text(eta)
             line = (
                 f"runs: {done} done, {running} running, {failed} failed, {pending} waiting"
                 + (f" ({away} away in a batch)" if away else "")
