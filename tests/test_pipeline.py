@@ -150,8 +150,36 @@ def test_bad_input_is_one_line_and_nonzero(
                    match="unknown model 'magic'")  # fmt: skip
     one_line_error(capsys, "collect-pairs", "--runs", runs, "--align", "warp",
                    match="unknown alignment 'warp'")  # fmt: skip
+    # an input file that is not there, or a directory that is no run of its stage
+    one_line_error(capsys, "collect-pairs", "--runs", runs, "--source-policy",
+                   tmp_path / "none.pt", match="Reacher3's policy not found")  # fmt: skip
+    one_line_error(capsys, "build-bank", "--runs", runs, "--source-policy", tmp_path,
+                   match="a directory without policy.pt")  # fmt: skip
+    one_line_error(capsys, "train-model", "--runs", runs, "--dataset", tmp_path,
+                   match="dataset not found")  # fmt: skip
+    one_line_error(capsys, "transfer", "--runs", runs, "--model", "pved", "--model-path",
+                   tmp_path, match="model not found")  # fmt: skip
+    one_line_error(capsys, "transfer", "--runs", runs, "--model", "pved", "--model-path",
+                   pipeline / "reacher/model/pved/seed0", "--bank", tmp_path / "none.npz",
+                   match="source bank not found")  # fmt: skip
     # nothing half-written: failed stages left no result.json behind
     assert not list(runs.rglob("result.json")) if runs.exists() else True
+
+
+def test_a_stage_takes_an_earlier_stage_by_its_run_directory(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the directory a stage printed stands for the file in it: the same inputs, by digest
+    root = pipeline / "reacher"
+    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "pved",
+                           "--model-path", root / "model/pved/seed0",
+                           "--bank", root / "bank/Reacher3-Push/seed0",
+                           *TINY_TRANSFER)  # fmt: skip
+    assert code == 0, err
+    by_dir = json.loads((tmp_path / "reacher/transfer/pved/seed20000/config.json").read_text())
+    by_file = json.loads((root / "transfer/pved/seed20000/config.json").read_text())
+    assert by_dir["config_hash"] == by_file["config_hash"]
+    assert by_dir["config"]["model"] == by_file["config"]["model"]
 
 
 def test_oracle_trains_on_the_full_reward_and_is_evaluated_on_the_default(

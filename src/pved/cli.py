@@ -349,8 +349,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("collect-pairs", "paired rollouts of both agents on the training task")
     p.add_argument("--pair", default="reacher")
-    p.add_argument("--source-policy", type=Path, help="default: the shipped pretrained one")
-    p.add_argument("--target-policy", type=Path, help="default: the shipped pretrained one")
+    p.add_argument(
+        "--source-policy",
+        type=Path,
+        help="policy.pt or its run directory (default: the shipped pretrained one)",
+    )
+    p.add_argument(
+        "--target-policy",
+        type=Path,
+        help="policy.pt or its run directory (default: the shipped pretrained one)",
+    )
     p.add_argument("--episodes", type=int)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -364,14 +372,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("train-model", "fit PVED (or a variant) on a paired dataset")
     p.add_argument("--pair", default="reacher")
     p.add_argument("--model", default="pved")
-    p.add_argument("--dataset", type=Path, help="default: the pair's collect-pairs output")
+    p.add_argument(
+        "--dataset",
+        type=Path,
+        help="pairs.npz or its run directory (default: the pair's collect-pairs output)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--epochs", type=int)
     p.set_defaults(func=_cmd_train_model)
 
     p = add("build-bank", "roll out the source's target-task policy for the shaping term")
     p.add_argument("--pair", default="reacher")
-    p.add_argument("--source-policy", type=Path, help="default: the shipped pretrained one")
+    p.add_argument(
+        "--source-policy",
+        type=Path,
+        help="policy.pt or its run directory (default: the shipped pretrained one)",
+    )
     p.add_argument("--episodes", type=int)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_build_bank)
@@ -384,8 +400,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="a model name (shaping), ppo (no transfer) or oracle (the source's full reward)",
     )
     p.add_argument("--seed", type=int, default=20000)
-    p.add_argument("--model-path", type=Path)
-    p.add_argument("--bank", type=Path)
+    p.add_argument(
+        "--model-path",
+        type=Path,
+        help="model.pt or its run directory (default: the pair's train-model output)",
+    )
+    p.add_argument(
+        "--bank",
+        type=Path,
+        help="bank.npz or its run directory (default: the pair's build-bank output)",
+    )
     p.add_argument("--steps", type=int)
     p.add_argument("--beta", type=float)
     p.add_argument("--eval-every", type=int)

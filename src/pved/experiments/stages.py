@@ -120,7 +120,9 @@ def file_digest(path: Path) -> str:
 
 
 def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
-    return Path(path) if path is not None else pretrained_policy_path(agent, task)
+    if path is None:
+        return pretrained_policy_path(agent, task)
+    return run_file(path, "policy.pt", f"{agent}'s policy")
 
 
 def _check_policy(policy: Policy, env_name: str, obs_dim: int, act_dim: int) -> None:
@@ -463,7 +465,11 @@ def train_model(
 ) -> Path:
     """Fit a shared-space model on a paired dataset (``pved train-model``)."""
     preset = get_preset(pair)
-    data_path = Path(dataset) if dataset is not None else default_dataset_path(pair, runs_root)
+    data_path = (
+        run_file(dataset, "pairs.npz", "dataset")
+        if dataset is not None
+        else default_dataset_path(pair, runs_root)
+    )
     data = load_dataset(data_path)
     data.check_agents(preset.source_agent, preset.target_agent)
     src_env = make_batched(env_id(preset.source_agent, preset.training_task), 1)
@@ -647,9 +653,13 @@ def transfer_spec(
         config["train_reward"] = "full"
     elif method != NO_TRANSFER:
         model_class(method)  # an unknown method name fails here, before any file check
-        m_path = Path(model_path) if model_path else default_model_path(pair, method, runs_root)
+        m_path = (
+            run_file(model_path, "model.pt", "model")
+            if model_path
+            else default_model_path(pair, method, runs_root)
+        )
         b_path = (
-            Path(bank_path)
+            run_file(bank_path, "bank.npz", "source bank")
             if bank_path
             else (
                 run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
@@ -808,10 +818,16 @@ __all__ = [
 
 
 # ---------------------------------------------------------------------------- analysis
-def run_file(path: Path | str, name: str) -> Path:
-    """``path`` itself, or ``path/name`` when ``path`` is a run directory."""
+def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
+    """``path`` itself, or ``path/name`` when ``path`` is a run directory (a stage's
+    ``model.pt``, ``bank.npz``, ``pairs.npz``, ``policy.pt``); :class:`PvedError` naming
+    ``what`` (default: ``name``) when there is no such file."""
     path = Path(path)
-    return path / name if path.is_dir() else path
+    resolved = path / name if path.is_dir() else path
+    if not resolved.is_file():
+        where = f"{path} (a directory without {name})" if path.is_dir() else str(path)
+        raise PvedError(f"{what or name} not found: {where}")
+    return resolved
 
 
 def _analysis_inputs(
