@@ -97,6 +97,10 @@ def test_report_and_evaluate(
     code, out, _ = run_cli(capsys, "evaluate", "--policy", policy, "--env",
                            "pved/Reacher4Push-v0", "--episodes", "16")  # fmt: skip
     assert code == 0 and json.loads(out)["episodes"] == 16
+    # its run directory stands for it
+    code, by_dir, _ = run_cli(capsys, "evaluate", "--policy", policy.parent, "--env",
+                              "pved/Reacher4Push-v0", "--episodes", "16")  # fmt: skip
+    assert code == 0 and json.loads(by_dir) == json.loads(out)
 
 
 def one_line_error(capsys: pytest.CaptureFixture[str], *argv: object, match: str) -> None:

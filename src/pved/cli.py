@@ -418,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_transfer)
 
     p = sub.add_parser("evaluate", help="success rate / return of a saved policy")
-    p.add_argument("--policy", type=Path, required=True)
+    p.add_argument("--policy", type=Path, required=True, help="policy.pt or its run directory")
     p.add_argument("--env", required=True)
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--seed", type=int, default=0)

@@ -784,7 +784,7 @@ def evaluate(
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
     pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
-    policy = load_policy(Path(policy_path))
+    policy = load_policy(run_file(policy_path, "policy.pt", "policy"))
     env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
     _check_policy(
         policy, env_name, env.single_observation_space.shape[0], env.single_action_space.shape[0]
