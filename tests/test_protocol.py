@@ -643,44 +643,31 @@ def test_runner_retries_a_job_whose_worker_died(tmp_path: Path, backend: str) ->
     assert report.attempts == {"f": 2, "g": 1} and not report.failed
 
 
-def test_process_runner_leaves_no_worker_behind(tmp_path: Path) -> None:
+@pytest.mark.parametrize("pool_thread_slow_to_record", [False, True])
+def test_process_runner_leaves_no_worker_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, pool_thread_slow_to_record: bool
+) -> None:
     # a pool worker still alive when run_jobs returns would be joined at interpreter exit
     # (multiprocessing's rule for non-daemon children): a finished test run that never
     # exits. The replaced pool's workers count too. Only this call's children count: a
     # process another test left behind (still dying) is not run_jobs's.
     import multiprocessing
-
-    _ship_this_module_to("processes")
-    before = set(multiprocessing.active_children())
-    jobs = [
-        Job("f", _dies_once, {"marker": str(tmp_path / "died")}),
-        Job("g", _ok, {"value": 6}, deps=("f",)),
-        Job("h", _ok, {"value": 7}),
-    ]
-    report = run_jobs(_FixedPlan(jobs), workers=2, retries=1, live=False, backend="processes")
-    assert not report.failed
-    assert set(multiprocessing.active_children()) - before == set()
-
-
-def test_process_runner_returns_once_the_pools_have_recorded_their_workers_exits(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # Two threads wait on each worker: run_jobs' shutdown and the pool's own thread. The
-    # one that reaps it records its exit code a moment later; until then the other finds
-    # no such child and multiprocessing counts the worker alive (CI saw one "started"
-    # after run_jobs returned). Here the pools' threads are slow to record it.
-    import multiprocessing
     import threading
 
-    real_waitpid = os.waitpid
+    if pool_thread_slow_to_record:
+        # Two threads wait on each worker: run_jobs' shutdown and the pool's own. The one
+        # that reaps it records its exit code a moment later; until then the other finds
+        # no such child and multiprocessing counts the worker alive (CI saw one "started"
+        # after run_jobs returned). Here the pools' threads are slow to record it.
+        real_waitpid = os.waitpid
 
-    def waitpid_slow_to_record_off_the_main_thread(pid: int, options: int) -> tuple[int, int]:
-        reaped = real_waitpid(pid, options)
-        if reaped[0] == pid and threading.current_thread() is not threading.main_thread():
-            time.sleep(0.5)
-        return reaped
+        def waitpid_slow_off_the_main_thread(pid: int, options: int) -> tuple[int, int]:
+            reaped = real_waitpid(pid, options)
+            if reaped[0] == pid and threading.current_thread() is not threading.main_thread():
+                time.sleep(0.5)
+            return reaped
 
-    monkeypatch.setattr(os, "waitpid", waitpid_slow_to_record_off_the_main_thread)
+        monkeypatch.setattr(os, "waitpid", waitpid_slow_off_the_main_thread)
     _ship_this_module_to("processes")
     before = set(multiprocessing.active_children())
     jobs = [
