@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from pved.analysis.report import transfer_report
 from pved.config import EVALUATION_SEEDS, get_preset
+from pved.errors import PvedError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
 from pved.runs import atomic_write_json, run_path
 
@@ -38,6 +39,26 @@ class DemoConfig:
     eval_episodes: int = 48
     final_eval_episodes: int = 500
     jobs: int = 2
+
+    def __post_init__(self) -> None:
+        # checked before any stage: a budget refused at transfer came after the pairs,
+        # the model and the bank had been made
+        get_preset(self.pair)  # an unknown pair fails here
+        counts = (
+            "pair_episodes",
+            "model_epochs",
+            "bank_episodes",
+            "transfer_steps",
+            "eval_every",
+            "eval_episodes",
+            "final_eval_episodes",
+            "jobs",
+        )
+        for name in counts:
+            if getattr(self, name) <= 0:
+                raise PvedError(f"the demo's {name} must be positive, got {getattr(self, name)}")
+        if not self.seeds or min(self.seeds) < 0:
+            raise PvedError(f"the demo needs one or more seeds >= 0, got {list(self.seeds)}")
 
 
 def _transfer_job(

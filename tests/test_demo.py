@@ -1,0 +1,54 @@
+"""``make demo`` (``pved demo``): the Reacher pipeline end to end on a tiny budget, and
+its budget checked before any stage runs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from helpers import run_cli
+from pved.experiments.demo import DemoConfig, run_demo
+
+
+def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
+    cfg = DemoConfig(
+        seeds=(20000,),
+        pair_episodes=16,
+        model_epochs=1,
+        bank_episodes=8,
+        transfer_steps=2048,
+        eval_every=2048,
+        eval_episodes=8,
+        final_eval_episodes=8,
+        jobs=2,
+    )
+    out = run_demo(tmp_path / "runs", tmp_path / "report", cfg)
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [(r["method"], r["seeds"], r["steps"]) for r in rows] == [
+        ("pved", [20000], 2048),
+        ("ppo", [20000], 2048),
+    ]
+    assert (out / "curves_success_rate.png").stat().st_size > 0
+    assert json.loads((out / "demo_config.json").read_text())["transfer_steps"] == 2048
+    for method in cfg.methods:
+        run = tmp_path / "runs/reacher/transfer" / method / "seed20000"
+        assert json.loads((run / "result.json").read_text())["steps"] == 2048
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--steps", "-1"], "transfer_steps must be positive, got -1"),
+        (["--jobs", "0"], "jobs must be positive, got 0"),
+        (["--seeds", "-5"], "seeds >= 0, got [-5]"),
+    ],
+)
+def test_a_bad_demo_budget_is_refused_before_any_stage(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], match: str
+) -> None:
+    runs = tmp_path / "runs"
+    code, _, err = run_cli(capsys, "demo", "--runs", runs, "--out", tmp_path / "out", *argv)
+    assert code == 2 and err.strip().count("\n") == 0 and match in err, err
+    assert not runs.exists()  # nothing made before the refusal
