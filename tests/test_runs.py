@@ -20,6 +20,7 @@ from pved.runs import (
     claim_holder,
     config_hash,
     git_commit,
+    last_logged_step,
     release_claim,
     run_path,
     safe_torch_load,
@@ -177,3 +178,14 @@ def test_a_run_records_the_commit_its_process_imported(
     run.start()
     recorded = json.loads((run.path / "config.json").read_text())["git_commit"]
     assert recorded == git_commit() != "a commit made since"
+
+
+def test_last_logged_step_reads_the_last_whole_record(tmp_path: Path) -> None:
+    assert last_logged_step(tmp_path) == 0  # no metrics.jsonl yet
+    metrics = tmp_path / "metrics.jsonl"
+    records = [json.dumps({"step": step, "loss": 0.5, "pad": "x" * 300}) for step in range(40)]
+    metrics.write_text("\n".join(records) + "\n")  # longer than the 4 KiB tail it reads
+    assert last_logged_step(tmp_path) == 39
+    with metrics.open("a") as fh:
+        fh.write('{"step": 40, "lo')  # a line being written
+    assert last_logged_step(tmp_path) == 39

@@ -217,6 +217,24 @@ def _provenance(config_record: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def last_logged_step(run_dir: Path) -> int:
+    """The ``step`` of the last whole record of ``run_dir``'s ``metrics.jsonl`` (0 if none
+    yet): a running job's progress, read from its tail (a line being written is skipped)."""
+    try:
+        with (run_dir / "metrics.jsonl").open("rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - 4096))
+            lines = fh.read().decode(errors="replace").splitlines()
+    except OSError:
+        return 0
+    for line in reversed(lines):
+        try:
+            return int(json.loads(line)["step"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return 0
+
+
 def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:
     """``<root>/<pair>/<stage>/<name>/seed<k>``."""
     return Path(root) / pair / stage / name / f"seed{seed}"

@@ -7,9 +7,7 @@ budget and seeds, run side by side (one process per core) → a report folder.
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
-import os
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
@@ -21,7 +19,7 @@ from pved.analysis.report import transfer_report
 from pved.config import EVALUATION_SEEDS, get_preset
 from pved.errors import PvedError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
-from pved.runs import atomic_write_json, run_path
+from pved.runs import atomic_write_json, last_logged_step, run_path
 
 
 @dataclass(frozen=True)
@@ -87,17 +85,6 @@ def _transfer_job(
     )
 
 
-def _last_step(metrics: Path) -> int:
-    try:
-        with open(metrics, "rb") as handle:
-            handle.seek(0, os.SEEK_END)
-            handle.seek(max(0, handle.tell() - 4096))
-            lines = handle.read().decode(errors="ignore").strip().splitlines()
-        return int(json.loads(lines[-1])["step"]) if lines else 0
-    except (OSError, ValueError, KeyError, IndexError):
-        return 0
-
-
 def run_transfers(cfg: DemoConfig, runs_root: Path) -> None:
     """All (method, seed) transfer runs, ``cfg.jobs`` at a time, one progress bar over
     their environment steps (read from each run's metrics.jsonl)."""
@@ -119,16 +106,14 @@ def run_transfers(cfg: DemoConfig, runs_root: Path) -> None:
             )
             for m, s in jobs
         ]
-        metrics = [
-            run_path(runs_root, cfg.pair, "transfer", m, s) / "metrics.jsonl" for m, s in jobs
-        ]
+        run_dirs = [run_path(runs_root, cfg.pair, "transfer", m, s) for m, s in jobs]
         with tqdm(
             total=total, desc=f"transfer {len(jobs)} runs", unit="step", unit_scale=True
         ) as bar:
             while not all(f.done() for f in futures):
                 done_steps = sum(
-                    cfg.transfer_steps if f.done() else _last_step(p)
-                    for f, p in zip(futures, metrics, strict=True)
+                    cfg.transfer_steps if f.done() else last_logged_step(run_dir)
+                    for f, run_dir in zip(futures, run_dirs, strict=True)
                 )
                 bar.update(done_steps - bar.n)
                 time.sleep(1.0)

@@ -55,7 +55,7 @@ from typing import Any, Protocol
 
 from pved.blas import kernel_env
 from pved.errors import PvedError
-from pved.runs import RESTORED_FROM, atomic_write_json, claim_holder
+from pved.runs import RESTORED_FROM, atomic_write_json, claim_holder, last_logged_step
 
 #: Environment of every worker: one thread per run (parallelism comes from runs side by
 #: side), one OpenBLAS kernel on every machine, headless rendering.
@@ -383,24 +383,6 @@ def _read_result(run_dir: Path | None) -> Any:
         return None  # damaged: the job runs, and its stage says what is wrong
 
 
-def _last_step(metrics: Path) -> int:
-    """The ``step`` of the last record of a ``metrics.jsonl`` (0 if none yet)."""
-    try:
-        with metrics.open("rb") as fh:
-            fh.seek(0, os.SEEK_END)
-            size = fh.tell()
-            fh.seek(max(0, size - 4096))
-            lines = fh.read().decode(errors="replace").splitlines()
-    except OSError:
-        return 0
-    for line in reversed(lines):
-        try:
-            return int(json.loads(line)["step"])
-        except (ValueError, KeyError, TypeError):
-            continue
-    return 0
-
-
 def _duration_text(seconds: float) -> str:
     """``seconds`` as hours:minutes:seconds, the hours uncapped: a protocol of a day and
     a half reads 36:00:00 (a clock format wraps it to 12:00:00)."""
@@ -561,7 +543,7 @@ def _run(
             if result_file.exists():
                 found_results[job.key] = result_file.stat().st_mtime_ns
             if job.steps:
-                earlier[job.key] = min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
+                earlier[job.key] = min(job.steps, last_logged_step(job.run_dir))
         in_flight[executor.submit(job.fn, dict(job.kwargs))] = job
 
     def blocked_keys() -> list[str]:
@@ -579,7 +561,7 @@ def _run(
         steps = sum(known[k].steps for k in results if k in known)
         for job in in_flight.values():
             if job.run_dir is not None and job.steps:
-                reached = min(job.steps, _last_step(job.run_dir / "metrics.jsonl"))
+                reached = min(job.steps, last_logged_step(job.run_dir))
                 steps += reached
                 # A run under another config starts over (its old records are deleted),
                 # and a resumed one goes back to its checkpoint: what counts as earlier
