@@ -33,7 +33,7 @@ from pved.config import get_preset  # noqa: E402
 from pved.models import evaluate_model, train_model  # noqa: E402
 from pved.runs import Run  # noqa: E402
 
-# pved pins MKL's AVX2 branch on import (pved.blas); the torch peer runs on the machine's
+# pved pins MKL's COMPATIBLE branch on import (pved.blas); the torch peer runs on the machine's
 # own branch, as it would without pved (unless the caller set MKL_CBWR)
 unpin_mkl_branch()
 

@@ -44,7 +44,7 @@ from pved.envs.gym_adapter import GymnasiumBatch  # noqa: E402
 from pved.envs.hopper_v5 import FRAME_SKIP, HopperV5Batch, gymnasium_hopper_xml  # noqa: E402
 from pved.rl.ppo import PPOConfig, train_ppo  # noqa: E402
 
-# pved pins MKL's AVX2 branch on import (pved.blas); the torch peer runs on the machine's
+# pved pins MKL's COMPATIBLE branch on import (pved.blas); the torch peer runs on the machine's
 # own branch, as it would without pved (unless the caller set MKL_CBWR)
 unpin_mkl_branch()
 

@@ -10,10 +10,12 @@ Two libraries pick their code by CPU when they load, and round differently on ea
 - MKL, the LAPACK inside torch's CPU build, picks a branch; the QR decomposition behind
   the policies' orthogonal initialisation (``torch.nn.init.orthogonal_``) runs through
   it, so the same seed gave another initial policy on another machine
-  (docs/decisions.md, "pved pins MKL's branch").
+  (docs/decisions.md, "pved pins MKL's branch"). MKL honours a pinned CPU branch
+  (``AVX2``, ``AVX512``) only on Intel's CPUs and runs its own choice (``AUTO``)
+  elsewhere; ``COMPATIBLE`` it honours on every CPU, and computes the same there.
 
-Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell`` and ``MKL_CBWR=AVX2`` where the
-CPU runs those paths and the caller has not set them. Each takes effect in every process
+Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell`` and ``MKL_CBWR=COMPATIBLE``
+where the CPU runs those paths and the caller has not set them. Each takes effect in every process
 that loads its library after the import (pved's CLI, its scripts, the protocol's
 workers: :data:`pved.experiments.runner.WORKER_ENV`), and in none that loaded it before.
 
@@ -29,8 +31,10 @@ from pathlib import Path
 
 #: OpenBLAS's kernel pinned: Haswell's runs on every x86-64 CPU with AVX2 and FMA.
 PORTABLE_KERNEL = "Haswell"
-#: MKL's conditional-numerical-reproducibility branch pinned, for the same CPUs.
-PORTABLE_MKL_BRANCH = "AVX2"
+#: MKL's conditional-numerical-reproducibility branch pinned, for the same CPUs: the one
+#: MKL takes on AMD's CPUs as on Intel's (it ignores ``AVX2`` on an AMD EPYC and runs
+#: ``AUTO``, which rounds otherwise).
+PORTABLE_MKL_BRANCH = "COMPATIBLE"
 
 # MKL's MKL_CBWR_* codes (mkl_service.h), as mkl_cbwr_get returns them; 1 (BRANCH_OFF)
 # is no pin: MKL's own choice by CPU.
@@ -113,7 +117,7 @@ def loaded_kernel() -> str | None:
 
 
 def loaded_mkl_branch() -> str | None:
-    """The branch torch's MKL runs in this process (``AVX2``, ``AVX512``, ``off`` where
+    """The branch torch's MKL runs in this process (``COMPATIBLE``, ``AVX2``, ``off`` where
     none is pinned, ...), or None where torch carries no MKL that says. Each run's
     ``config.json`` records it.
 
