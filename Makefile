@@ -51,11 +51,15 @@ restore: $(STAMP)
 # "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
 # PVED's best evaluation run, the scale of Eq. 10's distance on the training pairs
 # (scripts/shaping_scale.py) and how much the pairing and the models' shared codes relate
-# the two agents (scripts/pairing_signal.py), into reports/<pair>-<budget>/subspaces/
+# the two agents (scripts/pairing_signal.py), into reports/<pair>-<budget>/subspaces/;
+# for jaco-fetch also where on the table each evaluation run's policy succeeds
+# (scripts/peg_success_map.py)
 subspaces: $(STAMP)
 	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
 	$(PY) scripts/shaping_scale.py reports/$(PAIR)-$(BUDGET)
 	$(PY) scripts/pairing_signal.py reports/$(PAIR)-$(BUDGET)
+	$(if $(filter jaco-fetch,$(PAIR)),$(PY) scripts/peg_success_map.py \
+		reports/$(PAIR)-$(BUDGET) --copies 4)
 
 # Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
 # where they are committed, then judge the paper's claims on every finished pair (one
@@ -76,6 +80,9 @@ publish:
 			reports/$(PAIR)-$(BUDGET)/subspaces/chosen.json \
 			reports/$(PAIR)-$(BUDGET)/subspaces/shaping_scale.json \
 			reports/$(PAIR)-$(BUDGET)/subspaces/pairing_signal.json \
+			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
+	if [ -f reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json ]; then \
+		cp reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json \
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 

@@ -1,0 +1,228 @@
+"""Where on the table a Peg policy succeeds: its success rate hole position by hole position.
+
+A Fetch4 (or Jaco) policy on the Peg task is run with its mean action on a square grid of
+hole positions over the task's hole distribution (``HOLE_CENTER_XY`` +- ``HOLE_RANGE``),
+each position in ``--copies`` episodes that differ only in the arm's initial joint noise.
+For every position it reports the success rate at the episode's last step, and for the
+whole grid how far the peg's tip ends from the hole's axis, from the grid's centre, and
+how much the tip's end point moves with the hole (the slope of a least-squares fit of
+the end xy on the hole xy: 1 for a policy that follows the hole, 0 for one that goes to
+the same place whatever the hole).
+
+A failed episode whose tip ends resting on the table top (within ``ON_TABLE_TOL`` of its
+height) has pushed the peg down beside the hole, where friction holds it.
+
+A policy that ignores the hole and pushes its peg down at one place succeeds where the
+hole happens to lie under it; its success rate over the uniform hole distribution is
+then the share of the box within reach of that place, whatever PPO's budget. This
+separates that failure from an arm that follows the hole but cannot insert the peg.
+
+    .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
+        [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
+
+Prints the map (rows: hole y from high to low; columns: hole x from low to high) and the
+summary; ``--json`` also writes them, atomically. Given a jaco-fetch ``pved protocol``
+directory instead, it maps every evaluation run that kept its policy (about 10 s a run)
+and prints one row per method; the runs and the table go to
+``PROTOCOL_DIR/subspaces/peg_success.json`` (or ``--json``).
+"""
+
+from __future__ import annotations
+
+import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
+
+# isort: split
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pved.envs.arms import HOLE_CENTER_XY, HOLE_RANGE, TABLE_TOP_Z
+from pved.envs.registry import make_batched
+from pved.errors import PvedError
+from pved.experiments.protocol import transfer_run_method
+from pved.experiments.stages import run_file
+from pved.rl.policy import load_policy
+from pved.runs import atomic_write_json
+
+PEG_ENV_IDS = {"fetch4": "pved/Fetch4Peg-v0", "jaco": "pved/JacoPeg-v0"}
+ON_TABLE_TOL = 0.005  # m: a tip this close to the table top's height rests on it
+
+
+def success_map(policy_path: Path, agent: str, grid: int, copies: int, seed: int) -> dict[str, Any]:
+    """Run the policy at ``grid`` x ``grid`` hole positions, ``copies`` episodes each, and
+    return the per-position success rates and the tip's end-point statistics."""
+    if agent not in PEG_ENV_IDS:
+        raise PvedError(f"unknown agent {agent!r}; known: {', '.join(PEG_ENV_IDS)}")
+    if grid < 2 or copies < 1:
+        raise PvedError("the grid needs at least 2 points a side and 1 copy a point")
+    policy = load_policy(policy_path)
+    offsets = np.linspace(-HOLE_RANGE, HOLE_RANGE, grid)
+    xs = HOLE_CENTER_XY[0] + offsets
+    ys = HOLE_CENTER_XY[1] + offsets
+    holes = np.array([(x, y) for y in ys for x in xs for _ in range(copies)])
+    env = make_batched(PEG_ENV_IDS[agent], len(holes))
+    obs_dim = env.single_observation_space.shape[0]
+    if obs_dim != policy.obs_dim:
+        raise PvedError(
+            f"{policy_path} takes {policy.obs_dim} observations, {agent}'s Peg env gives {obs_dim}"
+        )
+    obs, _ = env.reset(seed=seed, options={"hole": holes})
+    success = np.zeros(len(holes), dtype=bool)
+    tip = np.zeros((len(holes), 3))
+    for _ in range(int(env.max_episode_steps)):
+        obs, _, _, _, info = env.step(policy.act(obs, deterministic=True))
+        # the step that ends an episode reports its last state; the env resets after it
+        success = np.asarray(info["is_success"], dtype=bool)
+        tip = np.asarray(info["peg_tip"], dtype=np.float64)
+    rate = success.reshape(grid, grid, copies).mean(axis=2)  # [y index, x index]
+    # a failed peg that rests on the table top beside its hole has stopped looking for it
+    on_table = np.abs(tip[:, 2] - TABLE_TOP_Z) < ON_TABLE_TOL
+    end_xy = tip[:, :2]
+    # end xy = a + B hole xy: B's diagonal says how far the tip follows the hole
+    design = np.column_stack([np.ones(len(holes)), holes])
+    coef, *_ = np.linalg.lstsq(design, end_xy, rcond=None)
+    return {
+        "policy": str(policy_path),
+        "agent": agent,
+        "grid": grid,
+        "copies": copies,
+        "seed": seed,
+        "hole_x": xs.tolist(),
+        "hole_y": ys.tolist(),
+        "success_rate": float(success.mean()),
+        "success_by_hole": rate.tolist(),
+        "tip_to_hole_axis_m_median": float(np.median(np.linalg.norm(end_xy - holes, axis=1))),
+        "tip_end_spread_m": float(np.sqrt(np.mean(np.sum((end_xy - end_xy.mean(0)) ** 2, 1)))),
+        "tip_end_mean_xy": end_xy.mean(axis=0).tolist(),
+        "failures": int((~success).sum()),
+        "failures_resting_on_table": int((on_table & ~success).sum()),
+        "follow_slope_x": float(coef[1, 0]),
+        "follow_slope_y": float(coef[2, 1]),
+    }
+
+
+def render(result: dict[str, Any]) -> str:
+    """The map as text: one row per hole y (high to low), one column per hole x."""
+    lines = [f"success by hole position, {result['policy']} ({result['copies']} episodes each)"]
+    lines.append("y \\ x    " + " ".join(f"{x:5.3f}" for x in result["hole_x"]))
+    for y, row in reversed(list(zip(result["hole_y"], result["success_by_hole"], strict=True))):
+        lines.append(f"{y:+6.3f}   " + " ".join(f"{r:5.2f}" for r in row))
+    lines.append(
+        f"success rate {result['success_rate']:.3f}; the tip ends "
+        f"{result['tip_to_hole_axis_m_median']:.4f} m from the hole's axis (median); its end "
+        f"points spread {result['tip_end_spread_m']:.4f} m about "
+        f"{np.round(result['tip_end_mean_xy'], 4).tolist()} and follow the hole with slope "
+        f"x {result['follow_slope_x']:.2f}, y {result['follow_slope_y']:.2f}; "
+        f"{result['failures_resting_on_table']} of {result['failures']} failed episodes end "
+        f"with the tip resting on the table top"
+    )
+    return "\n".join(lines)
+
+
+def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[str, Any]:
+    """The map of every evaluation run of a jaco-fetch protocol that kept its policy,
+    summarised by method: how many runs, their mean success over the grid, the share of
+    grid holes a run solves in at least half its episodes, the share of failed episodes
+    that end resting on the table, and the median slopes with which the tip follows the
+    hole. Runs restored from a summary kept no policy and are counted apart."""
+    try:
+        record = json.loads((protocol / "protocol.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise PvedError(f"{protocol} is not a protocol directory (protocol.json: {exc})") from exc
+    if "jaco-fetch" not in record.get("pairs", []):
+        raise PvedError(f"{protocol} has no jaco-fetch runs (pairs: {record.get('pairs')})")
+    seeds = {int(s) for s in record["budget"]["evaluation_seeds"]}
+    runs: dict[str, list[dict[str, Any]]] = {}
+    without_policy: dict[str, int] = {}
+    for run in sorted((protocol / "runs" / "jaco-fetch" / "transfer").glob("*/seed*")):
+        if int(run.name.removeprefix("seed")) not in seeds or not (run / "result.json").is_file():
+            continue
+        method = transfer_run_method(run.parent.name)
+        if not (run / "policy.pt").is_file():
+            without_policy[method] = without_policy.get(method, 0) + 1
+            continue
+        result = success_map(run / "policy.pt", "fetch4", grid, copies, seed)
+        result["run"] = f"{run.parent.name}/{run.name}"
+        runs.setdefault(method, []).append(result)
+    methods: dict[str, dict[str, Any]] = {}
+    for method, results in runs.items():
+        failures = sum(r["failures"] for r in results)
+        methods[method] = {
+            "runs": len(results),
+            "runs_without_policy": without_policy.get(method, 0),
+            "success_rate_mean": float(np.mean([r["success_rate"] for r in results])),
+            "holes_solved_mean": float(
+                np.mean([np.mean(np.asarray(r["success_by_hole"]) >= 0.5) for r in results])
+            ),
+            "failures_resting_on_table": (
+                sum(r["failures_resting_on_table"] for r in results) / failures
+                if failures
+                else None
+            ),
+            "follow_slope_x_median": float(np.median([r["follow_slope_x"] for r in results])),
+            "follow_slope_y_median": float(np.median([r["follow_slope_y"] for r in results])),
+        }
+    for method, count in without_policy.items():
+        methods.setdefault(method, {"runs": 0, "runs_without_policy": count})
+    return {"protocol": str(protocol), "grid": grid, "copies": copies, "seed": seed,
+            "methods": methods, "runs": {m: rs for m, rs in runs.items()}}  # fmt: skip
+
+
+def render_summary(summary: dict[str, Any]) -> str:
+    """The protocol summary as a Markdown table, one row per method."""
+    lines = [
+        "| method | runs (without policy) | success over the grid | holes solved | failures "
+        "resting on the table | tip follows the hole, slope x / y |",
+        "|---|---|---|---|---|---|",
+    ]
+    for method, m in sorted(summary["methods"].items()):
+        if not m["runs"]:
+            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | |")
+            continue
+        resting = m["failures_resting_on_table"]
+        lines.append(
+            f"| {method} | {m['runs']} ({m['runs_without_policy']}) | "
+            f"{m['success_rate_mean']:.3f} | {m['holes_solved_mean']:.3f} | "
+            f"{'–' if resting is None else f'{resting:.3f}'} | "
+            f"{m['follow_slope_x_median']:.2f} / {m['follow_slope_y_median']:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "policy",
+        type=Path,
+        help="policy.pt, the run directory holding it, or a jaco-fetch protocol directory",
+    )
+    parser.add_argument("--agent", default="fetch4", help="fetch4 or jaco")
+    parser.add_argument("--grid", type=int, default=11)
+    parser.add_argument("--copies", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    try:
+        if (args.policy / "protocol.json").is_file():
+            summary = protocol_summary(args.policy, args.grid, args.copies, args.seed)
+            out = args.json or args.policy / "subspaces" / "peg_success.json"
+            print(render_summary(summary))
+            atomic_write_json(out, summary)
+            return 0
+        path = run_file(args.policy, "policy.pt", "policy")
+        result = success_map(path, args.agent, args.grid, args.copies, args.seed)
+    except PvedError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(render(result))
+    if args.json is not None:
+        atomic_write_json(args.json, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

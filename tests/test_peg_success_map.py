@@ -1,0 +1,99 @@
+"""scripts/peg_success_map.py: where on the table a Peg policy succeeds."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "peg_success_map.py"
+JACO_PEG = ROOT / "src" / "pved" / "pretrained" / "jaco_peg_seed0.pt"
+
+
+def _script() -> Any:
+    spec = importlib.util.spec_from_file_location("peg_success_map", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_source_policy_follows_every_hole_of_the_grid(tmp_path: Path) -> None:
+    # the shipped Jaco policy solves Peg everywhere: its tip must end on each grid hole's
+    # axis, which it can only do if every copy was given its own hole
+    out = tmp_path / "map.json"
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), str(JACO_PEG), "--agent", "jaco", "--grid", "3",
+         "--copies", "2", "--json", str(out)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    result = json.loads(out.read_text())
+    assert result["success_rate"] == 1.0
+    assert result["success_by_hole"] == [[1.0] * 3] * 3
+    assert result["follow_slope_x"] == pytest.approx(1.0, abs=0.05)
+    assert result["follow_slope_y"] == pytest.approx(1.0, abs=0.05)
+    assert result["tip_to_hole_axis_m_median"] < 0.005
+    assert result["hole_x"] == pytest.approx([0.5, 0.55, 0.6])
+    assert "success rate 1.000" in done.stdout
+
+
+def test_a_policy_for_another_agent_is_a_one_line_error(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), str(JACO_PEG), "--agent", "fetch4", "--json",
+         str(tmp_path / "map.json")],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 1
+    assert done.stderr.count("\n") == 1 and "takes 30 observations" in done.stderr
+    assert not (tmp_path / "map.json").exists()
+    with pytest.raises(Exception, match="unknown agent 'ant'"):
+        _script().success_map(JACO_PEG, "ant", 3, 1, 0)
+
+
+def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(tmp_path: Path) -> None:
+    # a Fetch4 policy of the right size (the shipped Reach one: Peg's observation has as
+    # many entries), an evaluation run of PVED, a tuning run that is not one, and a PPO
+    # evaluation run restored without its policy
+    protocol = tmp_path / "jaco-fetch-paper"
+    transfer = protocol / "runs" / "jaco-fetch" / "transfer"
+    record = {"pairs": ["jaco-fetch"], "budget": {"evaluation_seeds": [20000, 40000]}}
+    (protocol).mkdir()
+    (protocol / "protocol.json").write_text(json.dumps(record))
+    fetch_policy = (ROOT / "src" / "pved" / "pretrained" / "fetch4_reach_seed0.pt").read_bytes()
+    for name, has_policy in (
+        ("pved-beta0.001-init0-src0/seed20000", True),
+        ("pved-beta0.001-init0-src0/seed2000", True),
+        ("ppo/seed40000", False),
+        ("ppo/seed20000", True),  # unfinished: no result.json
+    ):
+        run = transfer / name
+        run.mkdir(parents=True)
+        if has_policy:
+            (run / "policy.pt").write_bytes(fetch_policy)
+        if name != "ppo/seed20000":
+            (run / "result.json").write_text("{}")
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), str(protocol), "--grid", "2", "--copies", "1"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((protocol / "subspaces" / "peg_success.json").read_text())
+    assert summary["methods"]["ppo"] == {"runs": 0, "runs_without_policy": 1}
+    pved = summary["methods"]["pved"]
+    assert pved["runs"] == 1 and pved["runs_without_policy"] == 0
+    assert [r["run"] for r in summary["runs"]["pved"]] == ["pved-beta0.001-init0-src0/seed20000"]
+    assert "| ppo | 0 (1) |" in done.stdout and "| pved | 1 (0) |" in done.stdout
+    # a directory of another pair is refused in one line
+    record["pairs"] = ["walker-hopper"]
+    (protocol / "protocol.json").write_text(json.dumps(record))
+    refused = subprocess.run(
+        [sys.executable, str(SCRIPT), str(protocol)], capture_output=True, text=True
+    )
+    assert refused.returncode == 1 and "has no jaco-fetch runs" in refused.stderr
