@@ -17,14 +17,24 @@ hole happens to lie under it; its success rate over the uniform hole distributio
 then the share of the box within reach of that place, whatever PPO's budget. This
 separates that failure from an arm that follows the hole but cannot insert the peg.
 
+Given a shaping model and a source bank (``--shaping-model``, ``--bank``), it also
+measures Eq. 10's distance D along the policy's own trajectories: at each step, between
+the policy's state-action and the source's at the same step of the bank episode matched
+to the hole, as a transfer run computes it (``LatentShaping`` with beta = 1), averaged
+over the steps, and over the successful and the failed episodes apart. Run for a
+policy that inserts the peg and for one that does not, it says which of the two the
+term pays for.
+
     .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
         [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
+        [--shaping-model MODEL_RUN_DIR --bank BANK_RUN_DIR]
 
 Prints the map (rows: hole y from high to low; columns: hole x from low to high) and the
 summary; ``--json`` also writes them, atomically. Given a jaco-fetch ``pved protocol``
 directory instead, it maps every evaluation run that kept its policy (about 10 s a run)
-and prints one row per method; the runs and the table go to
-``PROTOCOL_DIR/subspaces/peg_success.json`` (or ``--json``).
+and prints one row per method, D measured under PVED's selected model and the source-0
+bank for every method's runs alike (where ``selection.json`` has chosen it); the runs
+and the table go to ``PROTOCOL_DIR/subspaces/peg_success.json`` (or ``--json``).
 """
 
 from __future__ import annotations
@@ -45,16 +55,38 @@ from pved.envs.registry import make_batched
 from pved.errors import PvedError
 from pved.experiments.protocol import transfer_run_method
 from pved.experiments.stages import run_file
+from pved.models.registry import load_model
 from pved.rl.policy import load_policy
-from pved.runs import atomic_write_json
+from pved.runs import atomic_write_json, run_path
+from pved.transfer.shaping import LatentShaping
+from pved.transfer.source_bank import load_bank
 
 PEG_ENV_IDS = {"fetch4": "pved/Fetch4Peg-v0", "jaco": "pved/JacoPeg-v0"}
 ON_TABLE_TOL = 0.005  # m: a tip this close to the table top's height rests on it
 
 
-def success_map(policy_path: Path, agent: str, grid: int, copies: int, seed: int) -> dict[str, Any]:
+def load_shaping(model_path: Path, bank_path: Path) -> LatentShaping:
+    """Eq. 10's distance as a transfer run computes it, with beta = 1 (so its term is −D),
+    for the Fetch4 target of the jaco-fetch pair."""
+    model = load_model(run_file(model_path, "model.pt", "shaping model"))
+    bank = load_bank(run_file(bank_path, "bank.npz", "source bank"))
+    env = make_batched(PEG_ENV_IDS["fetch4"], 1)
+    return LatentShaping(model, bank, 1.0, env.robot_state_indices)
+
+
+def success_map(
+    policy_path: Path,
+    agent: str,
+    grid: int,
+    copies: int,
+    seed: int,
+    shaping: LatentShaping | None = None,
+) -> dict[str, Any]:
     """Run the policy at ``grid`` x ``grid`` hole positions, ``copies`` episodes each, and
-    return the per-position success rates and the tip's end-point statistics."""
+    return the per-position success rates and the tip's end-point statistics (and, with
+    ``shaping``, Eq. 10's distance D along the trajectories)."""
+    if shaping is not None and agent != "fetch4":
+        raise PvedError("Eq. 10's distance is the target's: --shaping-model needs --agent fetch4")
     if agent not in PEG_ENV_IDS:
         raise PvedError(f"unknown agent {agent!r}; known: {', '.join(PEG_ENV_IDS)}")
     if grid < 2 or copies < 1:
@@ -71,10 +103,17 @@ def success_map(policy_path: Path, agent: str, grid: int, copies: int, seed: int
             f"{policy_path} takes {policy.obs_dim} observations, {agent}'s Peg env gives {obs_dim}"
         )
     obs, _ = env.reset(seed=seed, options={"hole": holes})
+    # the source's episode each copy is compared with: the bank's nearest to its hole
+    episode = shaping.bank.match(holes, None) if shaping is not None else None
+    distance = np.zeros(len(holes))
     success = np.zeros(len(holes), dtype=bool)
     tip = np.zeros((len(holes), 3))
-    for _ in range(int(env.max_episode_steps)):
-        obs, _, _, _, info = env.step(policy.act(obs, deterministic=True))
+    for t in range(int(env.max_episode_steps)):
+        action = policy.act(obs, deterministic=True)
+        if shaping is not None and episode is not None:
+            steps = np.full(len(holes), t)
+            distance -= shaping.reward(obs, action, episode, steps)  # beta = 1: the term is −D
+        obs, _, _, _, info = env.step(action)
         # the step that ends an episode reports its last state; the env resets after it
         success = np.asarray(info["is_success"], dtype=bool)
         tip = np.asarray(info["peg_tip"], dtype=np.float64)
@@ -85,6 +124,16 @@ def success_map(policy_path: Path, agent: str, grid: int, copies: int, seed: int
     # end xy = a + B hole xy: B's diagonal says how far the tip follows the hole
     design = np.column_stack([np.ones(len(holes)), holes])
     coef, *_ = np.linalg.lstsq(design, end_xy, rcond=None)
+    shaping_stats: dict[str, float | None] = {}
+    if shaping is not None:
+        per_step = distance / int(env.max_episode_steps)
+        shaping_stats = {
+            "shaping_D_mean": float(per_step.mean()),
+            "shaping_D_mean_success": float(per_step[success].mean()) if success.any() else None,
+            "shaping_D_mean_failure": float(per_step[~success].mean())
+            if (~success).any()
+            else None,
+        }
     return {
         "policy": str(policy_path),
         "agent": agent,
@@ -102,6 +151,7 @@ def success_map(policy_path: Path, agent: str, grid: int, copies: int, seed: int
         "failures_resting_on_table": int((on_table & ~success).sum()),
         "follow_slope_x": float(coef[1, 0]),
         "follow_slope_y": float(coef[2, 1]),
+        **shaping_stats,
     }
 
 
@@ -120,7 +170,38 @@ def render(result: dict[str, Any]) -> str:
         f"{result['failures_resting_on_table']} of {result['failures']} failed episodes end "
         f"with the tip resting on the table top"
     )
+    if "shaping_D_mean" in result:
+        lines.append(
+            f"Eq. 10's D per step along these trajectories: {result['shaping_D_mean']:.4g} "
+            f"(successful episodes {_number(result['shaping_D_mean_success'])}, failed "
+            f"{_number(result['shaping_D_mean_failure'])})"
+        )
     return "\n".join(lines)
+
+
+def _number(value: float | None) -> str:
+    return "–" if value is None else f"{value:.4g}"
+
+
+def _median(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return float(np.median(present)) if present else None
+
+
+def protocol_shaping(protocol: Path) -> tuple[LatentShaping, str] | None:
+    """PVED's selected model (its chosen initialisation, from ``selection.json``) with the
+    source-0 bank, or None where the selection has not chosen it yet."""
+    try:
+        selection = json.loads((protocol / "selection.json").read_text())
+    except (OSError, ValueError):
+        return None
+    init = selection.get("jaco-fetch", {}).get("pved", {}).get("init")
+    if init is None:
+        return None
+    runs = protocol / "runs"
+    model = run_path(runs, "jaco-fetch", "model", "pved", int(init))
+    bank = run_path(runs, "jaco-fetch", "bank", "Jaco-Peg", 0)
+    return load_shaping(model, bank), f"pved init {init}, source-0 bank"
 
 
 def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[str, Any]:
@@ -128,7 +209,9 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
     summarised by method: how many runs, their mean success over the grid, the share of
     grid holes a run solves in at least half its episodes, the share of failed episodes
     that end resting on the table, and the median slopes with which the tip follows the
-    hole. Runs restored from a summary kept no policy and are counted apart."""
+    hole; where PVED's model is chosen, the median over runs of Eq. 10's D per step
+    under it (all, successful and failed episodes). Runs restored from a summary kept no
+    policy and are counted apart."""
     try:
         record = json.loads((protocol / "protocol.json").read_text())
     except (OSError, ValueError) as exc:
@@ -136,6 +219,8 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
     if "jaco-fetch" not in record.get("pairs", []):
         raise PvedError(f"{protocol} has no jaco-fetch runs (pairs: {record.get('pairs')})")
     seeds = {int(s) for s in record["budget"]["evaluation_seeds"]}
+    chosen = protocol_shaping(protocol)
+    shaping, measured_under = chosen if chosen is not None else (None, None)
     runs: dict[str, list[dict[str, Any]]] = {}
     without_policy: dict[str, int] = {}
     for run in sorted((protocol / "runs" / "jaco-fetch" / "transfer").glob("*/seed*")):
@@ -145,7 +230,7 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
         if not (run / "policy.pt").is_file():
             without_policy[method] = without_policy.get(method, 0) + 1
             continue
-        result = success_map(run / "policy.pt", "fetch4", grid, copies, seed)
+        result = success_map(run / "policy.pt", "fetch4", grid, copies, seed, shaping)
         result["run"] = f"{run.parent.name}/{run.name}"
         runs.setdefault(method, []).append(result)
     methods: dict[str, dict[str, Any]] = {}
@@ -165,30 +250,39 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
             ),
             "follow_slope_x_median": float(np.median([r["follow_slope_x"] for r in results])),
             "follow_slope_y_median": float(np.median([r["follow_slope_y"] for r in results])),
+            **{
+                f"{key}_median": _median([r.get(key) for r in results])
+                for key in ("shaping_D_mean", "shaping_D_mean_success", "shaping_D_mean_failure")
+            },
         }
     for method, count in without_policy.items():
         methods.setdefault(method, {"runs": 0, "runs_without_policy": count})
     return {"protocol": str(protocol), "grid": grid, "copies": copies, "seed": seed,
-            "methods": methods, "runs": {m: rs for m, rs in runs.items()}}  # fmt: skip
+            "shaping_measured_under": measured_under, "methods": methods,
+            "runs": {m: rs for m, rs in runs.items()}}  # fmt: skip
 
 
 def render_summary(summary: dict[str, Any]) -> str:
     """The protocol summary as a Markdown table, one row per method."""
     lines = [
         "| method | runs (without policy) | success over the grid | holes solved | failures "
-        "resting on the table | tip follows the hole, slope x / y |",
-        "|---|---|---|---|---|---|",
+        "resting on the table | tip follows the hole, slope x / y | Eq. 10's D per step "
+        "under PVED's model: all / successful / failed episodes |",
+        "|---|---|---|---|---|---|---|",
     ]
     for method, m in sorted(summary["methods"].items()):
         if not m["runs"]:
-            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | |")
+            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | | |")
             continue
         resting = m["failures_resting_on_table"]
         lines.append(
             f"| {method} | {m['runs']} ({m['runs_without_policy']}) | "
             f"{m['success_rate_mean']:.3f} | {m['holes_solved_mean']:.3f} | "
             f"{'–' if resting is None else f'{resting:.3f}'} | "
-            f"{m['follow_slope_x_median']:.2f} / {m['follow_slope_y_median']:.2f} |"
+            f"{m['follow_slope_x_median']:.2f} / {m['follow_slope_y_median']:.2f} | "
+            f"{_number(m['shaping_D_mean_median'])} / "
+            f"{_number(m['shaping_D_mean_success_median'])} / "
+            f"{_number(m['shaping_D_mean_failure_median'])} |"
         )
     return "\n".join(lines)
 
@@ -205,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--copies", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--shaping-model", type=Path, default=None, help="model.pt or its run")
+    parser.add_argument("--bank", type=Path, default=None, help="bank.npz or its run")
     args = parser.parse_args(argv)
     try:
         if (args.policy / "protocol.json").is_file():
@@ -214,7 +310,12 @@ def main(argv: list[str] | None = None) -> int:
             atomic_write_json(out, summary)
             return 0
         path = run_file(args.policy, "policy.pt", "policy")
-        result = success_map(path, args.agent, args.grid, args.copies, args.seed)
+        if (args.shaping_model is None) != (args.bank is None):
+            raise PvedError("--shaping-model and --bank go together")
+        shaping = (
+            load_shaping(args.shaping_model, args.bank) if args.shaping_model is not None else None
+        )
+        result = success_map(path, args.agent, args.grid, args.copies, args.seed, shaping)
     except PvedError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

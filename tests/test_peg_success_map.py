@@ -97,3 +97,51 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(tmp_path: Path)
         [sys.executable, str(SCRIPT), str(protocol)], capture_output=True, text=True
     )
     assert refused.returncode == 1 and "has no jaco-fetch runs" in refused.stderr
+
+
+def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(tmp_path: Path) -> None:
+    # D measured by the script must be what a transfer run's shaped env pays the same
+    # policy at the same holes and starts: same bank episodes, same steps, beta = 1
+    import numpy as np
+
+    from pved.cli import main
+    from pved.envs.registry import make_batched
+    from pved.models.registry import load_model
+    from pved.rl.policy import load_policy
+    from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
+    from pved.transfer.source_bank import load_bank
+
+    runs = tmp_path / "runs"
+    assert (
+        main(["collect-pairs", "--runs", str(runs), "--pair", "jaco-fetch", "--episodes", "4"]) == 0
+    )
+    assert main(["train-model", "--runs", str(runs), "--pair", "jaco-fetch", "--epochs", "1"]) == 0
+    assert main(["build-bank", "--runs", str(runs), "--pair", "jaco-fetch", "--episodes", "4"]) == 0
+    model_dir = next(runs.glob("jaco-fetch/model/pved/seed*"))
+    bank_dir = next(runs.glob("jaco-fetch/bank/*/seed*"))
+    policy_path = ROOT / "src" / "pved" / "pretrained" / "fetch4_reach_seed0.pt"
+
+    module = _script()
+    shaping = module.load_shaping(model_dir, bank_dir)
+    result = module.success_map(policy_path, "fetch4", 2, 1, 7, shaping)
+
+    holes = np.array([(x, y) for y in result["hole_y"] for x in result["hole_x"]])
+    model, bank = load_model(model_dir / "model.pt"), load_bank(bank_dir / "bank.npz")
+    inner = make_batched("pved/Fetch4Peg-v0", len(holes))
+    env = ShapedBatchedEnv(
+        inner, LatentShaping(model, bank, 1.0, inner.robot_state_indices), ("hole",)
+    )
+    policy = load_policy(policy_path)
+    obs, _ = env.reset(seed=7, options={"hole": holes})
+    paid = np.zeros(len(holes))
+    for _ in range(inner.max_episode_steps):
+        obs, _, _, _, info = env.step(policy.act(obs, deterministic=True))
+        paid += info["reward_shaping"]
+    assert result["shaping_D_mean"] == pytest.approx(-paid.mean() / inner.max_episode_steps)
+    assert result["shaping_D_mean"] > 0
+    # the two inputs go together
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), str(policy_path), "--shaping-model", str(model_dir)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 1 and "--shaping-model and --bank go together" in done.stderr
