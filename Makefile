@@ -36,7 +36,8 @@ reproduce: $(STAMP)
 # archive/<pair>-<budget>/ (kept beside the repository, not committed), and writes the
 # committed record, docs/protocol/<pair>-<budget>/finished-transfer-runs.json (each finished
 # transfer run's result, config and curve); `make restore` puts back into
-# reports/<pair>-<budget>/ what either holds, and `make reproduce` then goes on with the rest.
+# reports/<pair>-<budget>/ what either holds (for a published pair, its summary too, so it
+# reads as finished), and `make reproduce` then goes on with the rest.
 archive: $(STAMP)
 	$(VENV)/bin/pved archive save --protocol reports/$(PAIR)-$(BUDGET) \
 		--archive archive/$(PAIR)-$(BUDGET)

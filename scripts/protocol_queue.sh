@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Every pair's protocol at one budget, one pair after another, on this machine, in a way
 # that outlives it: each pair is first restored from what the repository holds of it
-# (`make restore`: its committed summary of finished runs, or a local archive), then run
+# (`make restore`: its committed summary of finished runs, or a local archive; a pair
+# already published comes back finished and is not run again), then run
 # (`make reproduce`), its finished runs archived and summarised every 10 minutes while it
 # runs (`make archive`), and, once its summary.json is there, its subspaces report made
 # and everything published (`make subspaces`, `make publish`). Committing the summaries
@@ -17,7 +18,13 @@ ARCHIVE_EVERY_S=${ARCHIVE_EVERY_S:-600}
 
 make .venv/.installed >/dev/null || exit 1
 for pair in $PAIRS; do
-    if [ -f "reports/$pair-$BUDGET/summary.json" ] && [ -f "docs/protocol/$pair-$BUDGET/summary.json" ]; then
+    if [ -f "docs/protocol/$pair-$BUDGET/summary.json" ]; then
+        # finished and published: a machine without its runs gets them back from the
+        # committed summary, published files and all (`pved claims` reads their curves
+        # when the next pair is published); nothing is made again
+        if [ ! -f "reports/$pair-$BUDGET/summary.json" ]; then
+            make restore PAIR="$pair" BUDGET="$BUDGET" || exit 1
+        fi
         echo "$pair-$BUDGET: finished and published"
         continue
     fi

@@ -230,3 +230,40 @@ def test_archive_bad_input_is_one_line(
     with pytest.raises(PvedError, match="is not readable"):
         restore_archive(summary, tmp_path / "p4")
     assert not (tmp_path / "p4").exists()
+
+
+@pytest.mark.slow
+def test_a_published_protocol_comes_back_finished(
+    protocol: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `make publish` put the finished protocol's summary beside its committed record; a
+    # machine without the runs gets them back with it, so `pved claims` reads the runs
+    # (curves and all), not the published summary alone
+    published = tmp_path / "published"
+    save_summary(protocol, published)
+    plan = ProtocolPlan.load(protocol)
+    summary = {"budget": plan.budget.name, "pairs": {"reacher": {}}, "failed": []}
+    atomic_write_json(published / "summary.json", summary)
+    atomic_write_json(published / "selection.json", {"reacher": {}})
+    (published / "summary.md").write_text("# Protocol summary\n")
+    back = tmp_path / "back"
+    _restore_by_cli(capsys, published, back, "2 restored, 0 exists, 3 summary files")
+    for name in ("summary.json", "selection.json", "summary.md"):
+        assert (back / name).read_bytes() == (published / name).read_bytes()
+    # restored again: the runs and files there are kept
+    (back / "summary.md").write_text("edited here\n")
+    _restore_by_cli(capsys, published, back, "0 restored, 2 exists")
+    assert (back / "summary.md").read_text() == "edited here\n"
+    # a record without a published summary restores runs only
+    record = tmp_path / "record"
+    save_summary(protocol, record)
+    _restore_by_cli(capsys, record, tmp_path / "runs-only", "2 restored, 0 exists")
+    assert not (tmp_path / "runs-only" / "summary.json").exists()
+    # a summary of another protocol is refused before anything is restored
+    atomic_write_json(published / "summary.json", {**summary, "pairs": {"walker-hopper": {}}})
+    with pytest.raises(PvedError, match="summarises another protocol"):
+        restore_archive(published, tmp_path / "elsewhere")
+    assert not (tmp_path / "elsewhere").exists()
+    (published / "summary.json").write_text("{not json")
+    with pytest.raises(PvedError, match="is not a protocol summary"):
+        restore_archive(published, tmp_path / "elsewhere")

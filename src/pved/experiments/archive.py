@@ -28,7 +28,12 @@ What is committed is smaller still: ``pved archive summary`` writes the protocol
 transfer run (by its path under ``runs/``) to its ``result``, ``config`` and evaluation
 ``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``). ``restore``
 reads either kind of directory; from a summary the runs come back without their
-policies, and the protocol makes again only what the runs still to come need.
+policies, and the protocol makes again only what the runs still to come need. A
+summary directory of a finished protocol also holds what ``make publish`` copied there
+(``summary.json``, ``summary.md``, ``selection.json``); those come back too, so the
+restored protocol reads as finished and ``pved claims`` judges it from its runs, learning
+curves included (from the published summary alone it cannot judge what the curves
+decide: the early-speed and stability parts).
 """
 
 from __future__ import annotations
@@ -55,6 +60,9 @@ POLICY_KEPT_FOR = "pved"
 SUMMARY_FILE = "finished-transfer-runs.json"
 #: where a transfer run lives under ``runs/``: ``<pair>/transfer/<run name>/seed<seed>``
 TRANSFER_REL = re.compile(r"[A-Za-z0-9_-]+/transfer/[A-Za-z0-9_.+-]+/seed[0-9]+")
+#: what ``make publish`` puts beside a finished protocol's record, in the order a restore
+#: writes them: ``summary.json`` last, since it is what marks a protocol finished
+PUBLISHED_FILES = ("selection.json", "summary.md", "summary.json")
 
 
 def _eval_rows(metrics: bytes) -> bytes:
@@ -223,7 +231,9 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
     """Put the runs of an archive, or of a summary directory (module docstring), into the
     protocol directory ``protocol_dir`` (created with their ``protocol.json`` when new);
     returns counts: ``restored`` and ``exists`` (a run directory is there already: it is
-    kept as it is). A run both archived and summarised comes from the archive.
+    kept as it is), and ``summary files`` where a finished protocol's published summary
+    came back with its runs (module docstring; files already there are kept). A run both
+    archived and summarised comes from the archive.
 
     A protocol directory that holds another plan is refused; every run is checked before
     any is copied (a damaged archive or summary restores nothing), and each run
@@ -246,6 +256,7 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
         foreign = [rel for rel in summarised if rel.split("/")[0] not in plan.pairs]
         if foreign:
             raise PvedError(f"{archive / SUMMARY_FILE}: run {foreign[0]} is not of this plan")
+    published = _published_summary(archive, plan)
     if (out / PLAN_FILE).exists():
         here = json.loads((out / PLAN_FILE).read_text())
         keys = ("pairs", "methods", "budget", "transfer_steps", "beta_grids")
@@ -279,4 +290,30 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
             counts["restored"] += 1
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    copied = 0
+    for name in published:  # after the runs: a protocol reads as finished once it is whole
+        if not (out / name).exists():
+            atomic_write_bytes(out / name, (archive / name).read_bytes())
+            copied += 1
+    if copied:
+        counts["summary files"] = copied
     return counts
+
+
+def _published_summary(archive: Path, plan: ProtocolPlan) -> list[str]:
+    """The published files of a finished protocol in ``archive`` (none where it has no
+    ``summary.json``), checked to be this plan's."""
+    summary_file = archive / "summary.json"
+    if not summary_file.is_file():
+        return []
+    try:
+        summary = json.loads(summary_file.read_text())
+        pairs, budget = set(summary["pairs"]), summary["budget"]
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as err:
+        raise PvedError(f"{summary_file} is not a protocol summary ({err!r})") from None
+    if pairs != set(plan.pairs) or budget != plan.budget.name:
+        raise PvedError(
+            f"{summary_file} summarises another protocol ({sorted(pairs)}, {budget!r}) "
+            f"than {archive / PLAN_FILE}"
+        )
+    return [name for name in PUBLISHED_FILES if (archive / name).is_file()]
