@@ -13,7 +13,8 @@ set -u
 cd "$(dirname "$0")/.."
 BUDGET=${BUDGET:-paper}
 WORKERS=${WORKERS:-2}
-PAIRS=${PAIRS:-"walker-hopper jaco-fetch humanoid-ant"}
+# reacher first: published at every budget it has, it is only restored, for `pved claims`
+PAIRS=${PAIRS:-"reacher walker-hopper jaco-fetch humanoid-ant"}
 ARCHIVE_EVERY_S=${ARCHIVE_EVERY_S:-600}
 
 make .venv/.installed >/dev/null || exit 1
