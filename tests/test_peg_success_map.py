@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,25 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "peg_success_map.py"
 JACO_PEG = ROOT / "src" / "pved" / "pretrained" / "jaco_peg_seed0.pt"
+
+
+@pytest.fixture(scope="module")
+def stages(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A runs root with a tiny jaco-fetch PVED model (runs/jaco-fetch/model/pved/seed0) and
+    a source bank (runs/jaco-fetch/bank/Jaco-Peg/seed0), made by the CLI from the shipped
+    policies."""
+    from pved.cli import main
+
+    runs = tmp_path_factory.mktemp("stages") / "runs"
+    for argv in (
+        ["collect-pairs", "--episodes", "4"],
+        ["train-model", "--epochs", "1"],
+        ["build-bank", "--episodes", "4"],
+    ):
+        assert main([argv[0], "--runs", str(runs), "--pair", "jaco-fetch", *argv[1:]]) == 0
+    assert (runs / "jaco-fetch/model/pved/seed0/model.pt").is_file()
+    assert (runs / "jaco-fetch/bank/Jaco-Peg/seed0/bank.npz").is_file()
+    return runs
 
 
 def _script() -> Any:
@@ -57,7 +77,9 @@ def test_a_policy_for_another_agent_is_a_one_line_error(tmp_path: Path) -> None:
         _script().success_map(JACO_PEG, "ant", 3, 1, 0)
 
 
-def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(tmp_path: Path) -> None:
+def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(
+    tmp_path: Path, stages: Path
+) -> None:
     # a Fetch4 policy of the right size (the shipped Reach one: Peg's observation has as
     # many entries), an evaluation run of PVED, a tuning run that is not one, and a PPO
     # evaluation run restored without its policy
@@ -90,6 +112,24 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(tmp_path: Path)
     assert pved["runs"] == 1 and pved["runs_without_policy"] == 0
     assert [r["run"] for r in summary["runs"]["pved"]] == ["pved-beta0.001-init0-src0/seed20000"]
     assert "| ppo | 0 (1) |" in done.stdout and "| pved | 1 (0) |" in done.stdout
+    assert summary["shaping_measured_under"] is None and pved["shaping_D_mean_median"] is None
+    # once the selection has chosen PVED's model, D is measured under it and the
+    # source-0 bank, for every method's runs alike
+    for stage in ("model/pved/seed0", "bank/Jaco-Peg/seed0"):
+        shutil.copytree(stages / "jaco-fetch" / stage, protocol / "runs" / "jaco-fetch" / stage)
+    (protocol / "selection.json").write_text(json.dumps({"jaco-fetch": {"pved": {"init": 0}}}))
+    module = _script()
+    assert module.main([str(protocol), "--grid", "2", "--copies", "1"]) == 0
+    summary = json.loads((protocol / "subspaces" / "peg_success.json").read_text())
+    assert summary["shaping_measured_under"] == "pved init 0, source-0 bank"
+    shaping = module.load_shaping(stages / "jaco-fetch/model/pved/seed0",
+                                  stages / "jaco-fetch/bank/Jaco-Peg/seed0")  # fmt: skip
+    alone = module.success_map(
+        transfer / "pved-beta0.001-init0-src0/seed20000/policy.pt", "fetch4", 2, 1, 0, shaping
+    )
+    assert summary["methods"]["pved"]["shaping_D_mean_median"] == pytest.approx(
+        alone["shaping_D_mean"]
+    )
     # a directory of another pair is refused in one line
     record["pairs"] = ["walker-hopper"]
     (protocol / "protocol.json").write_text(json.dumps(record))
@@ -99,26 +139,19 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(tmp_path: Path)
     assert refused.returncode == 1 and "has no jaco-fetch runs" in refused.stderr
 
 
-def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(tmp_path: Path) -> None:
+def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: Path) -> None:
     # D measured by the script must be what a transfer run's shaped env pays the same
     # policy at the same holes and starts: same bank episodes, same steps, beta = 1
     import numpy as np
 
-    from pved.cli import main
     from pved.envs.registry import make_batched
     from pved.models.registry import load_model
     from pved.rl.policy import load_policy
     from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
     from pved.transfer.source_bank import load_bank
 
-    runs = tmp_path / "runs"
-    assert (
-        main(["collect-pairs", "--runs", str(runs), "--pair", "jaco-fetch", "--episodes", "4"]) == 0
-    )
-    assert main(["train-model", "--runs", str(runs), "--pair", "jaco-fetch", "--epochs", "1"]) == 0
-    assert main(["build-bank", "--runs", str(runs), "--pair", "jaco-fetch", "--episodes", "4"]) == 0
-    model_dir = next(runs.glob("jaco-fetch/model/pved/seed*"))
-    bank_dir = next(runs.glob("jaco-fetch/bank/*/seed*"))
+    model_dir = stages / "jaco-fetch/model/pved/seed0"
+    bank_dir = stages / "jaco-fetch/bank/Jaco-Peg/seed0"
     policy_path = ROOT / "src" / "pved" / "pretrained" / "fetch4_reach_seed0.pt"
 
     module = _script()
