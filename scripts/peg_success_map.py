@@ -4,8 +4,8 @@ A Fetch4 (or Jaco) policy on the Peg task is run with its mean action on a squar
 hole positions over the task's hole distribution (``HOLE_CENTER_XY`` +- ``HOLE_RANGE``),
 each position in ``--copies`` episodes that differ only in the arm's initial joint noise.
 For every position it reports the success rate at the episode's last step, and for the
-whole grid how far the peg's tip ends from the hole's axis, from the grid's centre, and
-how much the tip's end point moves with the hole (the slope of a least-squares fit of
+whole grid how far the peg's tip ends from the hole's axis, how widely its end points
+spread, and how much the tip's end point moves with the hole (the slope of a least-squares fit of
 the end xy on the hole xy: 1 for a policy that follows the hole, 0 for one that goes to
 the same place whatever the hole).
 
@@ -23,7 +23,7 @@ the policy's state-action and the source's at the same step of the bank episode 
 to the hole, as a transfer run computes it (``LatentShaping`` with beta = 1), averaged
 over the steps, and over the successful and the failed episodes apart. Run for a
 policy that inserts the peg and for one that does not, it says which of the two the
-term pays for.
+term charges more.
 
     .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
         [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
