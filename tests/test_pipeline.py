@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import run_cli
+from helpers import params_of, run_cli
 from pved.cli import main
 from pved.models import MODELS, load_model
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
+from pved.rl.policy import load_policy
 
 TINY_TRANSFER = ["--steps", "4096", "--eval-every", "2048", "--eval-episodes", "16",
                  "--final-eval-episodes", "16"]  # fmt: skip
@@ -184,6 +185,29 @@ def test_a_stage_takes_an_earlier_stage_by_its_run_directory(
     by_file = json.loads((root / "transfer/pved/seed20000/config.json").read_text())
     assert by_dir["config_hash"] == by_file["config_hash"]
     assert by_dir["config"]["model"] == by_file["config"]["model"]
+
+
+def test_a_shaping_that_starts_after_the_last_step_is_plain_ppo(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --shaping-start holds the term at 0 (not in the paper); held for the whole run, the
+    # shaped run is the PPO run of its seed: same rewards, same updates, same weights
+    root = pipeline / "reacher"
+    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "pved",
+                           "--model-path", root / "model/pved/seed0",
+                           "--bank", root / "bank/Reacher3-Push/seed0",
+                           "--shaping-start", 4096, *TINY_TRANSFER)  # fmt: skip
+    assert code == 0, err
+    run = tmp_path / "reacher/transfer/pved/seed20000"
+    assert json.loads((run / "config.json").read_text())["config"]["shaping_start"] == 4096
+    late = params_of(load_policy(run / "policy.pt"))
+    assert np.array_equal(late, params_of(load_policy(root / "transfer/ppo/seed20000/policy.pt")))
+    # the term from step 0 moves the weights
+    shaped = params_of(load_policy(root / "transfer/pved/seed20000/policy.pt"))
+    assert not np.array_equal(late, shaped)
+    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "ppo",
+                           "--shaping-start", 10, *TINY_TRANSFER)  # fmt: skip
+    assert code != 0 and "has no shaping term" in err and len(err.strip().splitlines()) == 1
 
 
 def test_oracle_trains_on_the_full_reward_and_is_evaluated_on_the_default(

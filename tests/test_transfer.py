@@ -16,10 +16,12 @@ from helpers import assert_ppo_resumes_exactly
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
+from pved.experiments.stages import transfer_spec
 from pved.models import PVED, ModelDims, PVEDConfig
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy
 from pved.rl.ppo import PPOConfig
+from pved.runs import config_hash
 from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank, build_source_bank, load_bank, save_bank
 
@@ -112,6 +114,70 @@ def test_shaped_ppo_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> N
         return ShapedBatchedEnv(make_batched(TARGET_PUSH, 4), shaping, MATCH_KEYS)
 
     assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
+
+
+def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping) -> None:
+    env = make_batched(TARGET_PUSH, 4)
+    obs, info = env.reset(seed=1)
+    actions = np.random.default_rng(0).uniform(-1, 1, (4, env.single_action_space.shape[0]))
+    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    t = np.array([0, 3, 50, 99])
+    full = shaping.reward(obs, actions, episode, t)
+    late = LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=8)
+    # calls of 4 rows: 0 and 4 rows shaped before the first two, 8 before the third
+    assert np.array_equal(late.reward(obs, actions, episode, t), np.zeros(4))
+    assert np.array_equal(late.reward(obs, actions, episode, t), np.zeros(4))
+    assert np.array_equal(late.reward(obs, actions, episode, t), full)
+    assert late.steps == 12 and np.all(full < 0.0)
+    with pytest.raises(PvedError, match="shaping start must be >= 0"):
+        LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=-1)
+
+
+def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
+    # the term starts at update 3, after the checkpoint at update 2: a resume that lost
+    # the count of rows shaped would start it an update late and end elsewhere
+    cfg = PPOConfig(
+        num_envs=4,
+        steps_per_env=32,
+        minibatch_size=64,
+        epochs=2,
+        hidden_sizes=(32, 32),
+        total_steps=5 * 4 * 32,
+        checkpoint_every=2 * 4 * 32,
+        eval_every=4 * 32,
+        seed=2,
+    )
+
+    def make_env() -> ShapedBatchedEnv:
+        env = make_batched(TARGET_PUSH, 4)
+        late = LatentShaping(
+            shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=3 * 4 * 32
+        )
+        return ShapedBatchedEnv(env, late, MATCH_KEYS)
+
+    assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
+
+
+def test_a_shaping_start_is_in_the_run_config_only_when_set(tmp_path: Path) -> None:
+    model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
+    model.write_bytes(b"model")  # hashed, not read
+    bank.write_bytes(b"bank")
+
+    def spec(method: str, start: int) -> Any:
+        return transfer_spec(
+            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path,
+            shaping_start=start,
+        )  # fmt: skip
+
+    plain, late = spec("pved", 0), spec("pved", 300_000)
+    # runs made before the option existed keep their config hashes
+    assert "shaping_start" not in plain.config and plain.shaping_start == 0
+    assert late.config["shaping_start"] == 300_000 and late.shaping_start == 300_000
+    assert config_hash(late.config) != config_hash(plain.config)
+    with pytest.raises(PvedError, match="'ppo' has no shaping term"):
+        spec("ppo", 10)
+    with pytest.raises(PvedError, match="shaping start must be >= 0"):
+        spec("pved", -5)
 
 
 def test_shaped_env_refuses_a_state_for_other_copies_and_changes_nothing(

@@ -109,6 +109,7 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
             eval_episodes=args.eval_episodes,
             final_eval_episodes=args.final_eval_episodes,
             runs_root=args.runs,
+            shaping_start=args.shaping_start,
         )
     )
 
@@ -415,6 +416,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-every", type=int)
     p.add_argument("--eval-episodes", type=int)
     p.add_argument("--final-eval-episodes", type=int)
+    p.add_argument(
+        "--shaping-start",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="hold the shaping term at 0 for the first STEPS env steps (not in the paper; "
+        "default 0: from the start)",
+    )
     p.set_defaults(func=_cmd_transfer)
 
     p = sub.add_parser("evaluate", help="success rate / return of a saved policy")

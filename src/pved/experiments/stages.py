@@ -605,6 +605,7 @@ class TransferSpec:
     train_env_kwargs: dict[str, Any]
     shaping_inputs: tuple[Path, Path] | None
     beta: float
+    shaping_start: int
 
 
 def transfer_spec(
@@ -621,6 +622,7 @@ def transfer_spec(
     final_eval_episodes: int | None = None,
     runs_root: Path = DEFAULT_RUNS,
     run_name: str | None = None,
+    shaping_start: int = 0,
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
@@ -671,6 +673,13 @@ def transfer_spec(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
+        if shaping_start:
+            # only when set, so the runs made before it existed keep their config hashes
+            config["shaping_start"] = shaping_start
+    if shaping_start and shaping_inputs is None:
+        raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
+    if shaping_start < 0:
+        raise PvedError(f"the shaping start must be >= 0 env steps, not {shaping_start}")
     return TransferSpec(
         config=config,
         run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
@@ -681,6 +690,7 @@ def transfer_spec(
         train_env_kwargs=train_env_kwargs,
         shaping_inputs=shaping_inputs,
         beta=beta,
+        shaping_start=shaping_start,
     )
 
 
@@ -699,6 +709,7 @@ def transfer(
     runs_root: Path = DEFAULT_RUNS,
     run_name: str | None = None,
     progress: bool = True,
+    shaping_start: int = 0,
 ) -> dict[str, Any]:
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
@@ -710,7 +721,8 @@ def transfer(
     restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
     restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
     the target could do if the reward told it everything). Evaluation always uses the
-    target task's default env, so every method is measured alike."""
+    target task's default env, so every method is measured alike. ``shaping_start``
+    (env steps; not in the paper) holds the shaping term at 0 until then."""
     torch.set_num_threads(1)
     preset = get_preset(pair)
     spec = transfer_spec(
@@ -726,6 +738,7 @@ def transfer(
         final_eval_episodes=final_eval_episodes,
         runs_root=runs_root,
         run_name=run_name,
+        shaping_start=shaping_start,
     )
     name, ppo, shaping_inputs = spec.env_id, spec.ppo, spec.shaping_inputs
     eval_episodes, final_episodes = spec.eval_episodes, spec.final_episodes
@@ -741,7 +754,9 @@ def transfer(
         if model.name != method:
             raise PvedError(f"model {shaping_inputs[0]} is a {model.name!r} model, not {method!r}")
         bank = load_bank(shaping_inputs[1])
-        shaping = LatentShaping(model, bank, spec.beta, env.robot_state_indices)
+        shaping = LatentShaping(
+            model, bank, spec.beta, env.robot_state_indices, start=spec.shaping_start
+        )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
     policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)

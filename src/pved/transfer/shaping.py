@@ -49,6 +49,10 @@ class LatentShaping:
         bank: source state-actions on the target task.
         beta: the shaping weight β of Eq. 10.
         robot_state_indices: indices of the target's robot state in its observation.
+        start: env steps (rows shaped, over all calls) before which the term is 0: the
+            target trains on its own reward alone until then. Not in the paper, whose β
+            is fixed (0, the default); it asks whether the term hurts from the start, when
+            it can be far larger than the task reward, or all along (docs/decisions.md).
     """
 
     def __init__(
@@ -57,11 +61,17 @@ class LatentShaping:
         bank: SourceBank,
         beta: float,
         robot_state_indices: np.ndarray,
+        start: int = 0,
     ) -> None:
+        if start < 0:
+            raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
         self.model = model.eval()
         self.bank = bank
         self.beta = float(beta)
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
+        self.start = int(start)
+        # rows shaped so far: the clock ``start`` is read against (saved with the env)
+        self.steps = 0
         if bank.dim != model.source_dim:
             raise PvedError(
                 f"source bank rows have dim {bank.dim}, "
@@ -72,7 +82,12 @@ class LatentShaping:
         self, obs: np.ndarray, action: np.ndarray, episode: np.ndarray, t: np.ndarray
     ) -> np.ndarray:
         """Shaping term (N,) for target observations (N, obs_dim) and actions (N, act_dim)
-        at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,)."""
+        at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,); 0 while
+        fewer than ``start`` rows have been shaped before this call."""
+        before = self.steps
+        self.steps += len(obs)
+        if before < self.start:
+            return np.zeros(len(obs))
         x_t = np.concatenate([obs[:, self.robot_state_indices], action], 1)
         if x_t.shape[1] != self.model.target_dim:
             raise PvedError(
@@ -149,6 +164,7 @@ class ShapedBatchedEnv(BatchedEnv):
             "t": self._t.copy(),
             "episode": self._episode.copy(),
             "rng": None if self._rng is None else self._rng.bit_generator.state,
+            "shaping_steps": self.shaping.steps,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -160,6 +176,9 @@ class ShapedBatchedEnv(BatchedEnv):
         self._obs = np.asarray(state["obs"], dtype=np.float64).copy()
         self._t = t.copy()
         self._episode = np.asarray(state["episode"], dtype=np.int64).copy()
+        # states saved before the shaping start existed lack the clock; it only matters
+        # with a start, which those runs did not have
+        self.shaping.steps = int(state.get("shaping_steps", 0))
         self._rng = None
         if state["rng"] is not None:
             self._rng = np.random.default_rng()
