@@ -171,15 +171,24 @@ def test_bad_input_is_one_line_and_nonzero(
     assert not list(runs.rglob("result.json")) if runs.exists() else True
 
 
+def _pved_transfer_by_run_dirs(
+    capsys: pytest.CaptureFixture[str], pipeline: Path, runs: Path, *extra: object
+) -> tuple[int, str, str]:
+    """``pved transfer --model pved`` into ``runs`` on the pipeline's seed-0 model and
+    bank, named by their run directories, on the tiny budget."""
+    root = pipeline / "reacher"
+    return run_cli(capsys, "transfer", "--runs", runs, "--model", "pved",
+                   "--model-path", root / "model/pved/seed0",
+                   "--bank", root / "bank/Reacher3-Push/seed0",
+                   *extra, *TINY_TRANSFER)  # fmt: skip
+
+
 def test_a_stage_takes_an_earlier_stage_by_its_run_directory(
     pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # the directory a stage printed stands for the file in it: the same inputs, by digest
     root = pipeline / "reacher"
-    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "pved",
-                           "--model-path", root / "model/pved/seed0",
-                           "--bank", root / "bank/Reacher3-Push/seed0",
-                           *TINY_TRANSFER)  # fmt: skip
+    code, _, err = _pved_transfer_by_run_dirs(capsys, pipeline, tmp_path)
     assert code == 0, err
     by_dir = json.loads((tmp_path / "reacher/transfer/pved/seed20000/config.json").read_text())
     by_file = json.loads((root / "transfer/pved/seed20000/config.json").read_text())
@@ -193,10 +202,7 @@ def test_a_shaping_that_starts_after_the_last_step_is_plain_ppo(
     # --shaping-start holds the term at 0 (not in the paper); held for the whole run, the
     # shaped run is the PPO run of its seed: same rewards, same updates, same weights
     root = pipeline / "reacher"
-    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "pved",
-                           "--model-path", root / "model/pved/seed0",
-                           "--bank", root / "bank/Reacher3-Push/seed0",
-                           "--shaping-start", 4096, *TINY_TRANSFER)  # fmt: skip
+    code, _, err = _pved_transfer_by_run_dirs(capsys, pipeline, tmp_path, "--shaping-start", 4096)
     assert code == 0, err
     run = tmp_path / "reacher/transfer/pved/seed20000"
     assert json.loads((run / "config.json").read_text())["config"]["shaping_start"] == 4096

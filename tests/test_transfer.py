@@ -30,6 +30,21 @@ SOURCE_PUSH = "pved/Reacher3Push-v0"
 MATCH_KEYS = ("button_start",)
 
 
+# 5 updates of 4 x 32 steps, a checkpoint every 2: they cross the Push env's 100-step
+# episodes' boundary, where the bank is drawn
+RESUME_CFG = PPOConfig(
+    num_envs=4,
+    steps_per_env=32,
+    minibatch_size=64,
+    epochs=2,
+    hidden_sizes=(32, 32),
+    total_steps=5 * 4 * 32,
+    checkpoint_every=2 * 4 * 32,
+    eval_every=4 * 32,
+    seed=2,
+)
+
+
 @pytest.fixture(scope="module")
 def bank() -> SourceBank:
     env = make_batched(SOURCE_PUSH, 4)
@@ -96,24 +111,12 @@ def test_shaping_is_minus_beta_times_the_models_kl(shaping: LatentShaping) -> No
 
 
 def test_shaped_ppo_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
-    # the checkpoint holds the wrapper's bank episodes and steps with the Push env's state;
-    # 5 updates of 32 steps cross the 100-step episodes' boundary, where the bank is drawn
-    cfg = PPOConfig(
-        num_envs=4,
-        steps_per_env=32,
-        minibatch_size=64,
-        epochs=2,
-        hidden_sizes=(32, 32),
-        total_steps=5 * 4 * 32,
-        checkpoint_every=2 * 4 * 32,
-        eval_every=4 * 32,
-        seed=2,
-    )
+    # the checkpoint holds the wrapper's bank episodes and steps with the Push env's state
 
     def make_env() -> ShapedBatchedEnv:
         return ShapedBatchedEnv(make_batched(TARGET_PUSH, 4), shaping, MATCH_KEYS)
 
-    assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
+    assert_ppo_resumes_exactly(make_env, RESUME_CFG, tmp_path)
 
 
 def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping) -> None:
@@ -136,17 +139,6 @@ def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping)
 def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
     # the term starts at update 3, after the checkpoint at update 2: a resume that lost
     # the count of rows shaped would start it an update late and end elsewhere
-    cfg = PPOConfig(
-        num_envs=4,
-        steps_per_env=32,
-        minibatch_size=64,
-        epochs=2,
-        hidden_sizes=(32, 32),
-        total_steps=5 * 4 * 32,
-        checkpoint_every=2 * 4 * 32,
-        eval_every=4 * 32,
-        seed=2,
-    )
 
     def make_env() -> ShapedBatchedEnv:
         env = make_batched(TARGET_PUSH, 4)
@@ -155,7 +147,7 @@ def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_pat
         )
         return ShapedBatchedEnv(env, late, MATCH_KEYS)
 
-    assert_ppo_resumes_exactly(make_env, cfg, tmp_path)
+    assert_ppo_resumes_exactly(make_env, RESUME_CFG, tmp_path)
 
 
 def test_a_shaping_start_is_in_the_run_config_only_when_set(tmp_path: Path) -> None:
