@@ -21,9 +21,11 @@ Given a shaping model and a source bank (``--shaping-model``, ``--bank``), it al
 measures Eq. 10's distance D along the policy's own trajectories: at each step, between
 the policy's state-action and the source's at the same step of the bank episode matched
 to the hole, as a transfer run computes it (``LatentShaping`` with beta = 1), averaged
-over the steps, and over the successful and the failed episodes apart. Run for a
+over the steps, and over the successful and the failed episodes apart, and by where the
+peg's tip was when the step's action was taken (below the table top, in the hole; at
+it; above it): the median D of each height band and its share of the steps. Run for a
 policy that inserts the peg and for one that does not, it says which of the two the
-term charges more.
+term charges more, and whether it charges a tip in the hole more than one on the table.
 
     .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
         [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
@@ -63,6 +65,16 @@ from pved.transfer.source_bank import load_bank
 
 PEG_ENV_IDS = {"fetch4": "pved/Fetch4Peg-v0", "jaco": "pved/JacoPeg-v0"}
 ON_TABLE_TOL = 0.005  # m: a tip this close to the table top's height rests on it
+# where the tip is, by its height against the table top (m): in the hole, resting on the
+# table (within ON_TABLE_TOL), above it
+HEIGHT_BANDS = ("in_hole", "at_table_top", "above_table_top")
+
+
+def height_band(z: np.ndarray) -> np.ndarray:
+    """The index into ``HEIGHT_BANDS`` of each tip height ``z`` (m)."""
+    return np.where(
+        z < TABLE_TOP_Z - ON_TABLE_TOL, 0, np.where(z < TABLE_TOP_Z + ON_TABLE_TOL, 1, 2)
+    )
 
 
 def load_shaping(model_path: Path, bank_path: Path) -> LatentShaping:
@@ -102,17 +114,22 @@ def success_map(
         raise PvedError(
             f"{policy_path} takes {policy.obs_dim} observations, {agent}'s Peg env gives {obs_dim}"
         )
-    obs, _ = env.reset(seed=seed, options={"hole": holes})
+    obs, info = env.reset(seed=seed, options={"hole": holes})
     # the source's episode each copy is compared with: the bank's nearest to its hole
     episode = shaping.bank.match(holes, None) if shaping is not None else None
     distance = np.zeros(len(holes))
     success = np.zeros(len(holes), dtype=bool)
-    tip = np.zeros((len(holes), 3))
+    tip = np.asarray(info["peg_tip"], dtype=np.float64)
+    step_d: list[np.ndarray] = []  # D of each step, and the band of the tip it acted from
+    step_band: list[np.ndarray] = []
     for t in range(int(env.max_episode_steps)):
         action = policy.act(obs, deterministic=True)
         if shaping is not None and episode is not None:
             steps = np.full(len(holes), t)
-            distance -= shaping.reward(obs, action, episode, steps)  # beta = 1: the term is −D
+            d = -shaping.reward(obs, action, episode, steps)  # beta = 1: the term is −D
+            distance += d
+            step_d.append(d)
+            step_band.append(height_band(tip[:, 2]))
         obs, _, _, _, info = env.step(action)
         # the step that ends an episode reports its last state; the env resets after it
         success = np.asarray(info["is_success"], dtype=bool)
@@ -124,7 +141,7 @@ def success_map(
     # end xy = a + B hole xy: B's diagonal says how far the tip follows the hole
     design = np.column_stack([np.ones(len(holes)), holes])
     coef, *_ = np.linalg.lstsq(design, end_xy, rcond=None)
-    shaping_stats: dict[str, float | None] = {}
+    shaping_stats: dict[str, Any] = {}
     if shaping is not None:
         per_step = distance / int(env.max_episode_steps)
         shaping_stats = {
@@ -133,6 +150,16 @@ def success_map(
             "shaping_D_mean_failure": float(per_step[~success].mean())
             if (~success).any()
             else None,
+        }
+        d_all, band_all = np.concatenate(step_d), np.concatenate(step_band)
+        shaping_stats["shaping_D_by_tip_height"] = {
+            name: {
+                "share_of_steps": float(np.mean(band_all == i)),
+                "D_median": float(np.median(d_all[band_all == i]))
+                if (band_all == i).any()
+                else None,
+            }
+            for i, name in enumerate(HEIGHT_BANDS)
         }
     return {
         "policy": str(policy_path),
@@ -176,6 +203,14 @@ def render(result: dict[str, Any]) -> str:
             f"(successful episodes {_number(result['shaping_D_mean_success'])}, failed "
             f"{_number(result['shaping_D_mean_failure'])})"
         )
+        bands = result["shaping_D_by_tip_height"]
+        lines.append(
+            "by where the tip acted from, median D per step (share of the steps): "
+            + "; ".join(
+                f"{name.replace('_', ' ')} {_number(b['D_median'])} ({b['share_of_steps']:.3f})"
+                for name, b in bands.items()
+            )
+        )
     return "\n".join(lines)
 
 
@@ -210,8 +245,9 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
     grid holes a run solves in at least half its episodes, the share of failed episodes
     that end resting on the table, and the median slopes with which the tip follows the
     hole; where PVED's model is chosen, the median over runs of Eq. 10's D per step
-    under it (all, successful and failed episodes). Runs restored from a summary kept no
-    policy and are counted apart."""
+    under it (all, successful and failed episodes; and of each run's median D with its
+    tip in the hole and on the table top). Runs restored from a summary kept no policy
+    and are counted apart."""
     try:
         record = json.loads((protocol / "protocol.json").read_text())
     except (OSError, ValueError) as exc:
@@ -254,6 +290,15 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
                 f"{key}_median": _median([r.get(key) for r in results])
                 for key in ("shaping_D_mean", "shaping_D_mean_success", "shaping_D_mean_failure")
             },
+            # the median over runs of each run's median D with its tip in that band
+            **{
+                f"shaping_D_{band}_median": _median(
+                    [r["shaping_D_by_tip_height"][band]["D_median"] for r in results]
+                    if shaping is not None
+                    else []
+                )
+                for band in ("in_hole", "at_table_top")
+            },
         }
     for method, count in without_policy.items():
         methods.setdefault(method, {"runs": 0, "runs_without_policy": count})
@@ -267,12 +312,13 @@ def render_summary(summary: dict[str, Any]) -> str:
     lines = [
         "| method | runs (without policy) | success over the grid | holes solved | failures "
         "resting on the table | tip follows the hole, slope x / y | Eq. 10's D per step "
-        "under PVED's model: all / successful / failed episodes |",
-        "|---|---|---|---|---|---|---|",
+        "under PVED's model: all / successful / failed episodes | its median with the tip "
+        "in the hole / on the table top |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for method, m in sorted(summary["methods"].items()):
         if not m["runs"]:
-            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | | |")
+            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | | | |")
             continue
         resting = m["failures_resting_on_table"]
         lines.append(
@@ -282,7 +328,9 @@ def render_summary(summary: dict[str, Any]) -> str:
             f"{m['follow_slope_x_median']:.2f} / {m['follow_slope_y_median']:.2f} | "
             f"{_number(m['shaping_D_mean_median'])} / "
             f"{_number(m['shaping_D_mean_success_median'])} / "
-            f"{_number(m['shaping_D_mean_failure_median'])} |"
+            f"{_number(m['shaping_D_mean_failure_median'])} | "
+            f"{_number(m['shaping_D_in_hole_median'])} / "
+            f"{_number(m['shaping_D_at_table_top_median'])} |"
         )
     return "\n".join(lines)
 

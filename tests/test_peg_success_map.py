@@ -144,6 +144,7 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
     # policy at the same holes and starts: same bank episodes, same steps, beta = 1
     import numpy as np
 
+    from pved.envs.arms import TABLE_TOP_Z
     from pved.envs.registry import make_batched
     from pved.models.registry import load_model
     from pved.rl.policy import load_policy
@@ -165,13 +166,28 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
         inner, LatentShaping(model, bank, 1.0, inner.robot_state_indices), ("hole",)
     )
     policy = load_policy(policy_path)
-    obs, _ = env.reset(seed=7, options={"hole": holes})
+    obs, info = env.reset(seed=7, options={"hole": holes})
     paid = np.zeros(len(holes))
+    d_by_band: dict[str, list[float]] = {"in_hole": [], "at_table_top": [], "above_table_top": []}
     for _ in range(inner.max_episode_steps):
+        z = np.asarray(info["peg_tip"])[:, 2]  # where the tip is as the action is taken
         obs, _, _, _, info = env.step(policy.act(obs, deterministic=True))
         paid += info["reward_shaping"]
+        for zi, d in zip(z, -info["reward_shaping"], strict=True):
+            below, above = zi < TABLE_TOP_Z - 0.005, zi >= TABLE_TOP_Z + 0.005
+            band = "in_hole" if below else "above_table_top" if above else "at_table_top"
+            d_by_band[band].append(d)
     assert result["shaping_D_mean"] == pytest.approx(-paid.mean() / inner.max_episode_steps)
     assert result["shaping_D_mean"] > 0
+    # D by the tip's height, band by band, as the script groups it
+    steps = sum(len(v) for v in d_by_band.values())
+    by_height = result["shaping_D_by_tip_height"]
+    for band, ds in d_by_band.items():
+        assert by_height[band]["share_of_steps"] == pytest.approx(len(ds) / steps)
+        if ds:
+            assert by_height[band]["D_median"] == pytest.approx(float(np.median(ds)))
+        else:
+            assert by_height[band]["D_median"] is None
     # the two inputs go together
     done = subprocess.run(
         [sys.executable, str(SCRIPT), str(policy_path), "--shaping-model", str(model_dir)],
