@@ -26,6 +26,9 @@ peg's tip was when the step's action was taken (below the table top, in the hole
 it; above it): the median D of each height band and its share of the steps. Run for a
 policy that inserts the peg and for one that does not, it says which of the two the
 term charges more, and whether it charges a tip in the hole more than one on the table.
+It also measures D along the same steps against the source's episode at the hole
+reflected through the box's centre: a term that knows where the hole is charges a
+policy that follows the hole less at its own hole than at one 6 cm or more away.
 
     .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
         [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
@@ -68,6 +71,9 @@ ON_TABLE_TOL = 0.005  # m: a tip this close to the table top's height rests on i
 # where the tip is, by its height against the table top (m): in the hole, resting on the
 # table (within ON_TABLE_TOL), above it
 HEIGHT_BANDS = ("in_hole", "at_table_top", "above_table_top")
+# holes at least this far from the box's centre (m) are compared with their reflection
+# through it, at least twice as far away
+REFLECTED_MIN_OFFSET = 0.03
 
 
 def height_band(z: np.ndarray) -> np.ndarray:
@@ -115,19 +121,27 @@ def success_map(
             f"{policy_path} takes {policy.obs_dim} observations, {agent}'s Peg env gives {obs_dim}"
         )
     obs, info = env.reset(seed=seed, options={"hole": holes})
-    # the source's episode each copy is compared with: the bank's nearest to its hole
+    # the source's episode each copy is compared with: the bank's nearest to its hole, and
+    # the one nearest to the hole reflected through the box's centre
     episode = shaping.bank.match(holes, None) if shaping is not None else None
+    reflected = (
+        shaping.bank.match(2 * np.asarray(HOLE_CENTER_XY) - holes, None)
+        if shaping is not None
+        else None
+    )
     distance = np.zeros(len(holes))
+    distance_reflected = np.zeros(len(holes))
     success = np.zeros(len(holes), dtype=bool)
     tip = np.asarray(info["peg_tip"], dtype=np.float64)
     step_d: list[np.ndarray] = []  # D of each step, and the band of the tip it acted from
     step_band: list[np.ndarray] = []
     for t in range(int(env.max_episode_steps)):
         action = policy.act(obs, deterministic=True)
-        if shaping is not None and episode is not None:
+        if shaping is not None and episode is not None and reflected is not None:
             steps = np.full(len(holes), t)
             d = -shaping.reward(obs, action, episode, steps)  # beta = 1: the term is −D
             distance += d
+            distance_reflected -= shaping.reward(obs, action, reflected, steps)
             step_d.append(d)
             step_band.append(height_band(tip[:, 2]))
         obs, _, _, _, info = env.step(action)
@@ -161,6 +175,15 @@ def success_map(
             }
             for i, name in enumerate(HEIGHT_BANDS)
         }
+        far = np.linalg.norm(holes - np.asarray(HOLE_CENTER_XY), axis=1) >= REFLECTED_MIN_OFFSET
+        if far.any():
+            steps_per_episode = int(env.max_episode_steps)
+            shaping_stats["shaping_D_own_vs_reflected_hole"] = {
+                "episodes": int(far.sum()),
+                "own_D_median": float(np.median(distance[far])) / steps_per_episode,
+                "reflected_D_median": float(np.median(distance_reflected[far])) / steps_per_episode,
+                "own_lower_share": float(np.mean(distance[far] < distance_reflected[far])),
+            }
     return {
         "policy": str(policy_path),
         "agent": agent,
@@ -211,6 +234,16 @@ def render(result: dict[str, Any]) -> str:
                 for name, b in bands.items()
             )
         )
+        own = result.get("shaping_D_own_vs_reflected_hole")
+        if own is not None:
+            lines.append(
+                f"against the source at the hole reflected through the box's centre "
+                f"({own['episodes']} episodes at holes >= {REFLECTED_MIN_OFFSET} m from it): "
+                f"median D per step {own['own_D_median']:.4g} at its own hole, "
+                f"{own['reflected_D_median']:.4g} at the reflected one; lower at its own in "
+                f"{own['own_lower_share']:.3f} of the episodes (0.5: the term does not say "
+                f"where the hole is)"
+            )
     return "\n".join(lines)
 
 
@@ -246,8 +279,9 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
     that end resting on the table, and the median slopes with which the tip follows the
     hole; where PVED's model is chosen, the median over runs of Eq. 10's D per step
     under it (all, successful and failed episodes; and of each run's median D with its
-    tip in the hole and on the table top). Runs restored from a summary kept no policy
-    and are counted apart."""
+    tip in the hole and on the table top, and of the share of its episodes whose D is
+    lower at their own hole than at the reflected one). Runs restored from a summary
+    kept no policy and are counted apart."""
     try:
         record = json.loads((protocol / "protocol.json").read_text())
     except (OSError, ValueError) as exc:
@@ -299,6 +333,14 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
                 )
                 for band in ("in_hole", "at_table_top")
             },
+            # how often a run's D is lower at its own hole than at the reflected one
+            "shaping_own_hole_lower_share_median": _median(
+                [
+                    r["shaping_D_own_vs_reflected_hole"]["own_lower_share"]
+                    for r in results
+                    if "shaping_D_own_vs_reflected_hole" in r
+                ]
+            ),
         }
     for method, count in without_policy.items():
         methods.setdefault(method, {"runs": 0, "runs_without_policy": count})
@@ -313,12 +355,13 @@ def render_summary(summary: dict[str, Any]) -> str:
         "| method | runs (without policy) | success over the grid | holes solved | failures "
         "resting on the table | tip follows the hole, slope x / y | Eq. 10's D per step "
         "under PVED's model: all / successful / failed episodes | its median with the tip "
-        "in the hole / on the table top |",
-        "|---|---|---|---|---|---|---|---|",
+        "in the hole / on the table top | share of episodes whose D is lower at their own "
+        "hole than at the reflected one |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for method, m in sorted(summary["methods"].items()):
         if not m["runs"]:
-            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | | | |")
+            lines.append(f"| {method} | 0 ({m['runs_without_policy']}) | | | | | | | |")
             continue
         resting = m["failures_resting_on_table"]
         lines.append(
@@ -330,7 +373,8 @@ def render_summary(summary: dict[str, Any]) -> str:
             f"{_number(m['shaping_D_mean_success_median'])} / "
             f"{_number(m['shaping_D_mean_failure_median'])} | "
             f"{_number(m['shaping_D_in_hole_median'])} / "
-            f"{_number(m['shaping_D_at_table_top_median'])} |"
+            f"{_number(m['shaping_D_at_table_top_median'])} | "
+            f"{_number(m['shaping_own_hole_lower_share_median'])} |"
         )
     return "\n".join(lines)
 

@@ -144,7 +144,7 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
     # policy at the same holes and starts: same bank episodes, same steps, beta = 1
     import numpy as np
 
-    from pved.envs.arms import TABLE_TOP_Z
+    from pved.envs.arms import HOLE_CENTER_XY, TABLE_TOP_Z
     from pved.envs.registry import make_batched
     from pved.models.registry import load_model
     from pved.rl.policy import load_policy
@@ -180,6 +180,29 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
     assert result["shaping_D_mean"] == pytest.approx(-paid.mean() / inner.max_episode_steps)
     assert result["shaping_D_mean"] > 0
     # D by the tip's height, band by band, as the script groups it
+    # against the source at the reflected hole: every hole of a 2 x 2 grid is a corner,
+    # far enough from the centre; the same policy steps, the other hole's bank episode
+    shaping_per_step = LatentShaping(model, bank, 1.0, inner.robot_state_indices)
+    own_ep = bank.match(holes, None)
+    reflected_ep = bank.match(2 * np.asarray(HOLE_CENTER_XY) - holes, None)
+    assert not np.array_equal(own_ep, reflected_ep)
+    plain = make_batched("pved/Fetch4Peg-v0", len(holes))
+    obs, _ = plain.reset(seed=7, options={"hole": holes})
+    d_own, d_reflected = np.zeros(len(holes)), np.zeros(len(holes))
+    for t in range(plain.max_episode_steps):
+        action = policy.act(obs, deterministic=True)
+        at = np.full(len(holes), t)
+        d_own -= shaping_per_step.reward(obs, action, own_ep, at)
+        d_reflected -= shaping_per_step.reward(obs, action, reflected_ep, at)
+        obs, *_ = plain.step(action)
+    own = result["shaping_D_own_vs_reflected_hole"]
+    assert own["episodes"] == len(holes)
+    assert own["own_D_median"] == pytest.approx(np.median(d_own) / plain.max_episode_steps)
+    assert own["reflected_D_median"] == pytest.approx(
+        np.median(d_reflected) / plain.max_episode_steps
+    )
+    assert own["own_lower_share"] == pytest.approx(np.mean(d_own < d_reflected))
+    assert own["own_D_median"] != pytest.approx(own["reflected_D_median"])
     steps = sum(len(v) for v in d_by_band.values())
     by_height = result["shaping_D_by_tip_height"]
     for band, ds in d_by_band.items():
