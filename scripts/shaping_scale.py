@@ -22,6 +22,13 @@ policy sets its action at once but its state only over the following steps. Wher
 swapping the action leaves D at the matched level, the code ignores the action and the
 term rewards where the target is, not what it does.
 
+The same rows once more, each target step against the source step at the same step of
+another training episode (another task draw: another reach target, another slope):
+how often D is lower against its own source step than against that one. Near 1, the
+code tells this episode's task from another's at the same moment; near 0.5, the term
+could only say when to move, not where (compare `scripts/peg_success_map.py`'s own
+hole against the reflected one, on the target task).
+
 A second table asks whether D tells a good target from a bad one: for each shaped
 method's evaluation runs, D at the run's last PPO rollout (its logged shaping term over
 −β) against the run's final score, with Spearman's rank correlation over the runs. If
@@ -78,18 +85,18 @@ def distance_stats(distance: np.ndarray) -> dict[str, float]:
     }
 
 
-def shaping_scale(
-    model_path: Path, dataset_path: Path, rows: int, seed: int
-) -> dict[str, dict[str, float]]:
+def shaping_scale(model_path: Path, dataset_path: Path, rows: int, seed: int) -> dict[str, Any]:
     """D of Eq. 10 on ``rows`` sampled training pairs of the dataset at ``dataset_path``,
     matched and with the target side shuffled (:func:`matched_and_shuffled`), and with
-    only the target's action or robot state shuffled (:func:`target_part_swapped`)."""
+    only the target's action or robot state shuffled (:func:`target_part_swapped`), and
+    against another episode's source step at the same step (:func:`other_episode_same_step`)."""
     dataset = load_dataset(dataset_path)
     x_s, x_t = dataset.model_inputs()
     model = load_model(model_path).eval()
     return {
         **matched_and_shuffled(model, x_s, x_t, rows, seed),
         **target_part_swapped(model, x_s, x_t, dataset.state_dims[1], rows, seed),
+        **other_episode_same_step(model, x_s, x_t, dataset.episode, dataset.t_target, rows, seed),
     }
 
 
@@ -139,6 +146,47 @@ def target_part_swapped(
         d = model.shaping(source, torch.as_tensor(target, dtype=torch.float32))
         out[name] = distance_stats(d.double().numpy())
     return out
+
+
+@torch.no_grad()
+def other_episode_same_step(
+    model: SharedSpaceModel,
+    x_s: np.ndarray,
+    x_t: np.ndarray,
+    episode: np.ndarray,
+    t_target: np.ndarray,
+    rows: int,
+    seed: int,
+) -> dict[str, Any]:
+    """D of Eq. 10 on :func:`matched_and_shuffled`'s rows (the same ``seed``), each target
+    step x_t against the source step of a row of another episode (``episode`` (M,)) at
+    the same target step (``t_target`` (M,)), drawn with the seed; rows without such a
+    partner are left out. ``{"other_episode_same_step": stats, "own_lower_share": share
+    of the rows whose matched D is lower, "other_episode_rows": rows compared}``."""
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
+    rng.permutation(pick)  # matched_and_shuffled's draw, so the next ones differ from it
+    by_step: dict[int, np.ndarray] = {}
+    for t in np.unique(t_target[pick]):
+        by_step[int(t)] = np.flatnonzero(t_target == t)
+    own, other = [], []
+    for i in pick:
+        partners = by_step[int(t_target[i])]
+        partners = partners[episode[partners] != episode[i]]
+        if len(partners):
+            own.append(i)
+            other.append(int(rng.choice(partners)))
+    if not own:
+        raise ValueError("no row has a partner of another episode at the same step")
+    target = torch.as_tensor(x_t[own], dtype=torch.float32)
+    d_own = model.shaping(torch.as_tensor(x_s[own], dtype=torch.float32), target)
+    d_other = model.shaping(torch.as_tensor(x_s[other], dtype=torch.float32), target)
+    d_own_np, d_other_np = d_own.double().numpy(), d_other.double().numpy()
+    return {
+        "other_episode_same_step": distance_stats(d_other_np),
+        "own_lower_share": float(np.mean(d_own_np < d_other_np)),
+        "other_episode_rows": len(own),
+    }
 
 
 def end_distance_against_score(
@@ -263,9 +311,10 @@ def main() -> None:
     result: dict[str, Any] = {"rows": args.rows, "seed": args.seed, "pairs": {}}
     print(
         "| pair | method | init | D matched: median / mean | D shuffled: median / mean "
-        "| D, target action swapped: median | D, target state swapped: median |"
+        "| D, target action swapped: median | D, target state swapped: median "
+        "| D, another episode's source step at the same step: median (own lower in) |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for pair, entry in summary["pairs"].items():
         dataset = default_dataset_path(pair, runs_root)
         if not dataset.is_file():
@@ -283,7 +332,9 @@ def main() -> None:
             print(
                 f"| {pair} | {method} | {init} | {m['q50']:.3g} / {m['mean']:.3g} | "
                 f"{s['q50']:.3g} / {s['mean']:.3g} | {scale['action_swapped']['q50']:.3g} | "
-                f"{scale['state_swapped']['q50']:.3g} |"
+                f"{scale['state_swapped']['q50']:.3g} | "
+                f"{scale['other_episode_same_step']['q50']:.3g} "
+                f"({scale['own_lower_share']:.3f}) |"
             )
     print()
     print(

@@ -878,7 +878,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     scale = scales["reacher"]["pved"]
     assert scale["init"] == selection["init"]
     assert 0 <= scale["matched"]["q50"] <= scale["matched"]["q95"]
-    assert {"action_swapped", "state_swapped"} <= set(scale)
+    assert {"action_swapped", "state_swapped", "other_episode_same_step"} <= set(scale)
+    assert 0 <= scale["own_lower_share"] <= 1 and scale["other_episode_rows"] > 0
     if not methods["pved"]["shared_collapsed"]:
         # a model that learned anything puts a step nearer its own pair than a stranger
         assert scale["matched"]["q50"] < scale["shuffled"]["q50"]
@@ -1201,6 +1202,27 @@ def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() 
         assert both["shuffled"]["q50"] > 100 * both["matched"]["q50"]
     with pytest.raises(ValueError, match="does not split"):
         target_part_swapped(_PartCodes(slice(0, 3)), x_s, x_t, 5, rows=10, seed=0)
+
+
+def test_another_episodes_source_step_is_farther_only_if_the_code_reads_the_episode() -> None:
+    import numpy as np
+
+    other_episode_same_step = _script("shaping_scale").other_episode_same_step
+    rng = np.random.default_rng(0)
+    episode, step = np.repeat(np.arange(40), 10), np.tile(np.arange(10), 40)
+    # column 0 is the step, the same in every episode; columns 1-4 are the episode's own
+    x_t = np.column_stack([step, rng.normal(size=(400, 4))]).astype(np.float32)
+    x_s = x_t + 0.01 * rng.normal(size=x_t.shape).astype(np.float32)
+    where = other_episode_same_step(_PartCodes(slice(1, 5)), x_s, x_t, episode, step, 300, 2)
+    assert where["own_lower_share"] == 1.0 and where["other_episode_rows"] == 300
+    assert where["other_episode_same_step"]["q50"] > 100 * 0.01**2
+    # a code that reads only when: another episode's step is as near as its own
+    when = other_episode_same_step(_PartCodes(slice(0, 1)), x_s, x_t, episode, step, 300, 2)
+    assert 0.35 < when["own_lower_share"] < 0.65
+    with pytest.raises(ValueError, match="no row has a partner"):
+        other_episode_same_step(
+            _PartCodes(slice(0, 1)), x_s, x_t, np.zeros(400, dtype=int), step, 10, 0
+        )
 
 
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
