@@ -51,8 +51,9 @@ class LatentShaping:
         robot_state_indices: indices of the target's robot state in its observation.
         start: env steps (rows shaped, over all calls) before which the term is 0: the
             target trains on its own reward alone until then. Not in the paper, whose β
-            is fixed (0, the default); it asks whether the term hurts from the start, when
-            it can be far larger than the task reward, or all along (docs/decisions.md).
+            applies from the first step (``start=0``, the default); it asks whether the
+            term hurts from the start, when it can be far larger than the task reward, or
+            all along (docs/decisions.md).
     """
 
     def __init__(
