@@ -229,6 +229,37 @@ def test_oracle_trains_on_the_full_reward_and_is_evaluated_on_the_default(
     assert "rollout/reward_ee_button" not in ppo_rows
 
 
+def test_pairs_on_the_target_task(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--task`` pairs the agents on the target task (an analysis option), with the
+    parameters a bank is matched on shared, in a run of its own."""
+    target_policy = pipeline / "reacher/transfer/ppo/seed20000"
+    code, out, err = run_cli(capsys, "collect-pairs", "--runs", tmp_path, "--episodes", "8",
+                             "--task", "Push", "--target-policy", target_policy)  # fmt: skip
+    assert code == 0, err
+    path = Path(out.strip())
+    assert path.parent == tmp_path / "reacher/pairs/Push-subsample/seed0"
+    data = load_dataset(path)
+    assert data.header["source_env_id"] == "pved/Reacher3Push-v0"
+    assert data.header["target_env_id"] == "pved/Reacher4Push-v0"
+    assert list(data.task) == ["button_start"] and len(data.task["button_start"]) == 8
+    config = json.loads((path.parent / "config.json").read_text())["config"]
+    assert config["task"] == "Push"
+    # the training task's runs record no task, so their hashes are those made before
+    default = json.loads((pipeline / "reacher/pairs/subsample/seed0/config.json").read_text())
+    assert "task" not in default["config"]
+    # a model fits them, its dims checked against the envs they came from
+    code, _, err = run_cli(capsys, "train-model", "--runs", tmp_path, "--dataset", path,
+                           "--epochs", "1")  # fmt: skip
+    assert code == 0, err
+    one_line_error(capsys, "collect-pairs", "--runs", tmp_path, "--task", "Fly",
+                   match="unknown task 'Fly' for reacher")  # fmt: skip
+    # no target-task policy of the target agent is shipped: it must be given
+    one_line_error(capsys, "collect-pairs", "--runs", tmp_path, "--task", "Push",
+                   match="no pretrained policy for Reacher4 on Push")  # fmt: skip
+
+
 def test_dtw_alignment_stage(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run_cli(capsys, "collect-pairs", "--runs", tmp_path, "--episodes", "16",
                              "--align", "dtw")  # fmt: skip

@@ -59,6 +59,7 @@ def _cmd_collect_pairs(args: argparse.Namespace) -> None:
             episodes=args.episodes,
             seed=args.seed,
             align=args.align,
+            task=args.task,
             runs_root=args.runs,
         )
     )
@@ -367,6 +368,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="subsample (paper IV.A), time (same physical time), dtw (rounds of DTW on "
         "the shared space) or phase (same moment of the stride, near the same time); "
         "default: the pair's",
+    )
+    p.add_argument(
+        "--task",
+        help="the task to pair the agents on: the pair's training task (default) or, for "
+        "analysis and not as in the paper, its target task (give both policies)",
     )
     p.set_defaults(func=_cmd_collect_pairs)
 

@@ -254,20 +254,37 @@ def collect_pairs(
     episodes: int | None = None,
     seed: int = 0,
     align: str | None = None,
+    task: str | None = None,
     runs_root: Path = DEFAULT_RUNS,
     progress: bool = True,
 ) -> Path:
-    """Paired rollouts of both agents' training-task policies (``pved collect-pairs``)."""
+    """Paired rollouts of both agents' policies on ``task`` (``pved collect-pairs``).
+
+    ``task`` is the pair's training task (default; paper IV.A) or its target task. The
+    latter is not the paper's setting (the target agent has no policy for its target
+    task before transfer); it is an analysis option: a model trained on such pairs has
+    seen the target task's states, so transfer with it says what the training task's
+    coverage costs. Both agents of a target-task pair share the parameters a bank is
+    matched on (``bank_match_keys``: the hole, the button), as the training task's share
+    ``shared_task_keys``."""
     preset = get_preset(pair)
     cfg = preset.pairing
     episodes = cfg.episodes if episodes is None else episodes
     align = cfg.align if align is None else align
     if align not in ALIGNMENTS:
         raise PvedError(f"unknown alignment {align!r}; known: {', '.join(ALIGNMENTS)}")
-    src_path = _policy_or_pretrained(source_policy, preset.source_agent, preset.training_task)
-    tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, preset.training_task)
-    src_id = env_id(preset.source_agent, preset.training_task)
-    tgt_id = env_id(preset.target_agent, preset.training_task)
+    task = preset.training_task if task is None else task
+    if task not in (preset.training_task, preset.target_task):
+        raise PvedError(
+            f"unknown task {task!r} for {pair}: its tasks are {preset.training_task} "
+            f"(training) and {preset.target_task} (target)"
+        )
+    on_training_task = task == preset.training_task
+    shared_task_keys = preset.shared_task_keys if on_training_task else preset.bank_match_keys
+    src_path = _policy_or_pretrained(source_policy, preset.source_agent, task)
+    tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, task)
+    src_id = env_id(preset.source_agent, task)
+    tgt_id = env_id(preset.target_agent, task)
     config = {
         "stage": "pairs",
         "pair": pair,
@@ -278,7 +295,12 @@ def collect_pairs(
         "source_policy": file_digest(src_path),
         "target_policy": file_digest(tgt_path),
     }
-    run = Run(run_path(runs_root, pair, "pairs", align, seed), config, tensorboard=False)
+    run_name = align
+    if not on_training_task:
+        # only then, so the datasets made before the option keep their hashes and places
+        config["task"] = task
+        run_name = f"{task}-{align}"
+    run = Run(run_path(runs_root, pair, "pairs", run_name, seed), config, tensorboard=False)
     out = run.path / "pairs.npz"
     if run.is_done() and out.exists():
         return out
@@ -292,7 +314,7 @@ def collect_pairs(
         src_pol,
         tgt_pol,
         episodes,
-        shared_task_keys=preset.shared_task_keys,
+        shared_task_keys=shared_task_keys,
         deterministic=cfg.deterministic,
         seed=seed,
         progress=progress,
@@ -328,9 +350,7 @@ def collect_pairs(
     if align == "phase":
         alignment, header["phase"] = _phase_alignment(pairs, alignment, header)
         header["phase"]["base"] = time_only
-    dataset = pairs_to_dataset(
-        pairs, alignment, shared_task_keys=preset.shared_task_keys, header=header
-    )
+    dataset = pairs_to_dataset(pairs, alignment, shared_task_keys=shared_task_keys, header=header)
     save_dataset(out, dataset)
     run.finish(
         {
@@ -472,8 +492,11 @@ def train_model(
     )
     data = load_dataset(data_path)
     data.check_agents(preset.source_agent, preset.target_agent)
-    src_env = make_batched(env_id(preset.source_agent, preset.training_task), 1)
-    tgt_env = make_batched(env_id(preset.target_agent, preset.training_task), 1)
+    # the envs the pairs were collected on: the training task's unless `--task` chose another
+    src_id = data.header.get("source_env_id", env_id(preset.source_agent, preset.training_task))
+    tgt_id = data.header.get("target_env_id", env_id(preset.target_agent, preset.training_task))
+    src_env = make_batched(src_id, 1)
+    tgt_env = make_batched(tgt_id, 1)
     data.check_dims(
         src_env.single_observation_space.shape[0],
         src_env.single_action_space.shape[0],
