@@ -216,6 +216,32 @@ def test_a_shaping_that_starts_after_the_last_step_is_plain_ppo(
     assert code != 0 and "has no shaping term" in err and len(err.strip().splitlines()) == 1
 
 
+def test_the_log1p_shaping_form_trains_on_a_smaller_term(
+    pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --shaping-form log1p (not in the paper) shapes with −β·log(1 + D): the run records
+    # it, and its rollouts' shaping term is smaller in size than Eq. 10's from step 0
+    root = pipeline / "reacher"
+    code, _, err = _pved_transfer_by_run_dirs(capsys, pipeline, tmp_path, "--shaping-form", "log1p")
+    assert code == 0, err
+    run = tmp_path / "reacher/transfer/pved/seed20000"
+    assert json.loads((run / "config.json").read_text())["config"]["shaping_form"] == "log1p"
+
+    def first_shaping(run_dir: Path) -> float:
+        rows = [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+        return float(
+            next(r for r in rows if "rollout/reward_shaping" in r)["rollout/reward_shaping"]
+        )
+
+    eq10 = first_shaping(root / "transfer/pved/seed20000")
+    logged = first_shaping(run)
+    assert eq10 < logged < 0.0
+    code, _, err = run_cli(capsys, "transfer", "--runs", tmp_path, "--model", "pved",
+                           "--shaping-form", "cube", *TINY_TRANSFER)  # fmt: skip
+    assert code != 0 and "unknown shaping form 'cube'" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_oracle_trains_on_the_full_reward_and_is_evaluated_on_the_default(
     pipeline: Path,
 ) -> None:

@@ -136,6 +136,26 @@ def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping)
         LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=-1)
 
 
+def test_the_log1p_form_is_minus_beta_times_log1p_of_the_same_distance(
+    shaping: LatentShaping,
+) -> None:
+    env = make_batched(TARGET_PUSH, 3)
+    obs, info = env.reset(seed=2)
+    actions = np.random.default_rng(1).uniform(-1, 1, (3, env.single_action_space.shape[0]))
+    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    t = np.array([0, 20, 60])
+    eq10 = shaping.reward(obs, actions, episode, t)
+    logged = LatentShaping(
+        shaping.model, shaping.bank, 0.1, env.robot_state_indices, form="log1p"
+    ).reward(obs, actions, episode, t)
+    # the same D either way: −0.1·D against −0.1·log(1 + D)
+    np.testing.assert_allclose(logged, -0.1 * np.log1p(eq10 / -0.1), rtol=1e-9)
+    # log(1 + D) < D for D > 0, so the log form is the smaller penalty
+    assert np.all(eq10 < logged) and np.all(logged < 0.0)
+    with pytest.raises(PvedError, match="unknown shaping form 'sqrt'"):
+        LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, form="sqrt")
+
+
 def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
     # the term starts at update 3, after the checkpoint at update 2: a resume that lost
     # the count of rows shaped would start it an update late and end elsewhere
@@ -170,6 +190,28 @@ def test_a_shaping_start_is_in_the_run_config_only_when_set(tmp_path: Path) -> N
         spec("ppo", 10)
     with pytest.raises(PvedError, match="shaping start must be >= 0"):
         spec("pved", -5)
+
+
+def test_a_shaping_form_is_in_the_run_config_only_when_not_eq10(tmp_path: Path) -> None:
+    model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
+    model.write_bytes(b"model")  # hashed, not read
+    bank.write_bytes(b"bank")
+
+    def spec(method: str, form: str) -> Any:
+        return transfer_spec(
+            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path,
+            shaping_form=form,
+        )  # fmt: skip
+
+    plain, logged = spec("pved", "eq10"), spec("pved", "log1p")
+    # runs made before the option existed keep their config hashes
+    assert "shaping_form" not in plain.config and plain.shaping_form == "eq10"
+    assert logged.config["shaping_form"] == "log1p" and logged.shaping_form == "log1p"
+    assert config_hash(logged.config) != config_hash(plain.config)
+    with pytest.raises(PvedError, match="'ppo' has no shaping term"):
+        spec("ppo", "log1p")
+    with pytest.raises(PvedError, match="unknown shaping form 'log'"):
+        spec("pved", "log")
 
 
 def test_shaped_env_refuses_a_state_for_other_copies_and_changes_nothing(

@@ -111,6 +111,7 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
             final_eval_episodes=args.final_eval_episodes,
             runs_root=args.runs,
             shaping_start=args.shaping_start,
+            shaping_form=args.shaping_form,
         )
     )
 
@@ -429,6 +430,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="STEPS",
         help="hold the shaping term at 0 for the first STEPS env steps (not in the paper; "
         "default 0: from the start)",
+    )
+    p.add_argument(
+        "--shaping-form",
+        default="eq10",
+        metavar="FORM",
+        help="eq10: the paper's -beta*D (default); log1p: -beta*log(1+D), which keeps the "
+        "term's ordering but compresses its range (not in the paper)",
     )
     p.set_defaults(func=_cmd_transfer)
 

@@ -56,7 +56,7 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import PPOConfig, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
-from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
+from pved.transfer.shaping import SHAPING_FORMS, LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
 DEFAULT_RUNS = Path("runs")
@@ -629,6 +629,7 @@ class TransferSpec:
     shaping_inputs: tuple[Path, Path] | None
     beta: float
     shaping_start: int
+    shaping_form: str
 
 
 def transfer_spec(
@@ -646,9 +647,12 @@ def transfer_spec(
     runs_root: Path = DEFAULT_RUNS,
     run_name: str | None = None,
     shaping_start: int = 0,
+    shaping_form: str = "eq10",
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
+    if shaping_form not in SHAPING_FORMS:  # before any file is looked for
+        raise PvedError(f"unknown shaping form {shaping_form!r}; known: {', '.join(SHAPING_FORMS)}")
     preset = get_preset(pair)
     tcfg = preset.transfer
     beta = tcfg.beta if beta is None else beta
@@ -696,11 +700,15 @@ def transfer_spec(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
+        # both only when set, so the runs made before they existed keep their config hashes
         if shaping_start:
-            # only when set, so the runs made before it existed keep their config hashes
             config["shaping_start"] = shaping_start
+        if shaping_form != "eq10":
+            config["shaping_form"] = shaping_form
     if shaping_start and shaping_inputs is None:
         raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
+    if shaping_form != "eq10" and shaping_inputs is None:
+        raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
     if shaping_start < 0:
         raise PvedError(f"the shaping start must be >= 0 env steps, not {shaping_start}")
     return TransferSpec(
@@ -714,6 +722,7 @@ def transfer_spec(
         shaping_inputs=shaping_inputs,
         beta=beta,
         shaping_start=shaping_start,
+        shaping_form=shaping_form,
     )
 
 
@@ -733,6 +742,7 @@ def transfer(
     run_name: str | None = None,
     progress: bool = True,
     shaping_start: int = 0,
+    shaping_form: str = "eq10",
 ) -> dict[str, Any]:
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
@@ -745,7 +755,9 @@ def transfer(
     restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
     the target could do if the reward told it everything). Evaluation always uses the
     target task's default env, so every method is measured alike. ``shaping_start``
-    (env steps; not in the paper) holds the shaping term at 0 until then."""
+    (env steps; not in the paper) holds the shaping term at 0 until then;
+    ``shaping_form="log1p"`` (not in the paper) shapes with −β·log(1 + D) in place of
+    Eq. 10's −β·D (:class:`LatentShaping`)."""
     torch.set_num_threads(1)
     preset = get_preset(pair)
     spec = transfer_spec(
@@ -762,6 +774,7 @@ def transfer(
         runs_root=runs_root,
         run_name=run_name,
         shaping_start=shaping_start,
+        shaping_form=shaping_form,
     )
     name, ppo, shaping_inputs = spec.env_id, spec.ppo, spec.shaping_inputs
     eval_episodes, final_episodes = spec.eval_episodes, spec.final_episodes
@@ -778,7 +791,12 @@ def transfer(
             raise PvedError(f"model {shaping_inputs[0]} is a {model.name!r} model, not {method!r}")
         bank = load_bank(shaping_inputs[1])
         shaping = LatentShaping(
-            model, bank, spec.beta, env.robot_state_indices, start=spec.shaping_start
+            model,
+            bank,
+            spec.beta,
+            env.robot_state_indices,
+            start=spec.shaping_start,
+            form=spec.shaping_form,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)

@@ -29,6 +29,10 @@ from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.transfer.source_bank import SourceBank
 
+# How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
+# −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping").
+SHAPING_FORMS = ("eq10", "log1p")
+
 
 def task_params(info: dict[str, Any], keys: tuple[str, ...], n: int) -> np.ndarray:
     """The matching keys of ``info`` as one (n, K) array."""
@@ -54,6 +58,13 @@ class LatentShaping:
             applies from the first step (``start=0``, the default); it asks whether the
             term hurts from the start, when it can be far larger than the task reward, or
             all along (docs/decisions.md).
+        form: ``"eq10"`` (the default) gives −β·D, the paper's term; ``"log1p"`` gives
+            −β·log(1 + D). Not in the paper: a Gaussian KL grows with the squared gap
+            between means over the learned variances, and on jaco-fetch it starts at
+            millions of nats a step where matched training pairs cost under one
+            (docs/results.md), so β can only trade a term that swamps the task reward
+            for one too small to steer. log(1 + D) equals D for small D and grows
+            slowly for large D, which keeps the term's ordering and compresses its range.
     """
 
     def __init__(
@@ -63,14 +74,18 @@ class LatentShaping:
         beta: float,
         robot_state_indices: np.ndarray,
         start: int = 0,
+        form: str = "eq10",
     ) -> None:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
+        if form not in SHAPING_FORMS:
+            raise PvedError(f"unknown shaping form {form!r}; known: {', '.join(SHAPING_FORMS)}")
         self.model = model.eval()
         self.bank = bank
         self.beta = float(beta)
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
         self.start = int(start)
+        self.form = form
         # rows shaped so far: the clock ``start`` is read against (saved with the env)
         self.steps = 0
         if bank.dim != model.source_dim:
@@ -100,7 +115,10 @@ class LatentShaping:
             distance = self.model.shaping(
                 torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
             )
-        return -self.beta * distance.double().numpy()
+        d = distance.double().numpy()
+        if self.form == "log1p":
+            d = np.log1p(d)
+        return -self.beta * d
 
 
 class ShapedBatchedEnv(BatchedEnv):
