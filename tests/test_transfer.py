@@ -95,11 +95,19 @@ def test_bank_file_round_trip_and_bad_files(tmp_path: Path, bank: SourceBank) ->
         load_bank(tmp_path / "missing.npz")
 
 
+def _push_rows(
+    shaping: LatentShaping, n: int, seed: int
+) -> tuple[BatchedEnv, np.ndarray, np.ndarray, np.ndarray]:
+    """n target Push copies reset with ``seed``: the env, its first observations, random
+    actions, and the bank episodes matched to its buttons."""
+    env = make_batched(TARGET_PUSH, n)
+    obs, info = env.reset(seed=seed)
+    actions = np.random.default_rng(seed).uniform(-1, 1, (n, env.single_action_space.shape[0]))
+    return env, obs, actions, shaping.bank.match(np.asarray(info["button_start"]))
+
+
 def test_shaping_is_minus_beta_times_the_models_kl(shaping: LatentShaping) -> None:
-    env = make_batched(TARGET_PUSH, 3)
-    obs, info = env.reset(seed=1)
-    actions = np.random.default_rng(0).uniform(-1, 1, (3, env.single_action_space.shape[0]))
-    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    env, obs, actions, episode = _push_rows(shaping, 3, 1)
     t = np.array([0, 7, 99])
     got = shaping.reward(obs, actions, episode, t)
     x_t = np.concatenate([obs[:, env.robot_state_indices], actions], 1)
@@ -120,10 +128,7 @@ def test_shaped_ppo_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> N
 
 
 def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping) -> None:
-    env = make_batched(TARGET_PUSH, 4)
-    obs, info = env.reset(seed=1)
-    actions = np.random.default_rng(0).uniform(-1, 1, (4, env.single_action_space.shape[0]))
-    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    env, obs, actions, episode = _push_rows(shaping, 4, 1)
     t = np.array([0, 3, 50, 99])
     full = shaping.reward(obs, actions, episode, t)
     late = LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=8)
@@ -139,10 +144,7 @@ def test_shaping_start_holds_the_term_at_zero_until_then(shaping: LatentShaping)
 def test_the_log1p_form_is_minus_beta_times_log1p_of_the_same_distance(
     shaping: LatentShaping,
 ) -> None:
-    env = make_batched(TARGET_PUSH, 3)
-    obs, info = env.reset(seed=2)
-    actions = np.random.default_rng(1).uniform(-1, 1, (3, env.single_action_space.shape[0]))
-    episode = shaping.bank.match(np.asarray(info["button_start"]))
+    env, obs, actions, episode = _push_rows(shaping, 3, 2)
     t = np.array([0, 20, 60])
     eq10 = shaping.reward(obs, actions, episode, t)
     logged = LatentShaping(
@@ -170,48 +172,33 @@ def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_pat
     assert_ppo_resumes_exactly(make_env, RESUME_CFG, tmp_path)
 
 
-def test_a_shaping_start_is_in_the_run_config_only_when_set(tmp_path: Path) -> None:
+def test_the_shaping_options_are_in_the_run_config_only_when_set(tmp_path: Path) -> None:
     model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
     model.write_bytes(b"model")  # hashed, not read
     bank.write_bytes(b"bank")
 
-    def spec(method: str, start: int) -> Any:
+    def spec(method: str, **options: Any) -> Any:
         return transfer_spec(
-            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path,
-            shaping_start=start,
-        )  # fmt: skip
+            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path, **options
+        )
 
-    plain, late = spec("pved", 0), spec("pved", 300_000)
-    # runs made before the option existed keep their config hashes
+    plain = spec("pved")
+    late, logged = spec("pved", shaping_start=300_000), spec("pved", shaping_form="log1p")
+    # runs made before the options existed keep their config hashes
     assert "shaping_start" not in plain.config and plain.shaping_start == 0
-    assert late.config["shaping_start"] == 300_000 and late.shaping_start == 300_000
-    assert config_hash(late.config) != config_hash(plain.config)
-    with pytest.raises(PvedError, match="'ppo' has no shaping term"):
-        spec("ppo", 10)
-    with pytest.raises(PvedError, match="shaping start must be >= 0"):
-        spec("pved", -5)
-
-
-def test_a_shaping_form_is_in_the_run_config_only_when_not_eq10(tmp_path: Path) -> None:
-    model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
-    model.write_bytes(b"model")  # hashed, not read
-    bank.write_bytes(b"bank")
-
-    def spec(method: str, form: str) -> Any:
-        return transfer_spec(
-            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path,
-            shaping_form=form,
-        )  # fmt: skip
-
-    plain, logged = spec("pved", "eq10"), spec("pved", "log1p")
-    # runs made before the option existed keep their config hashes
     assert "shaping_form" not in plain.config and plain.shaping_form == "eq10"
+    assert plain.config == spec("pved", shaping_start=0, shaping_form="eq10").config
+    assert late.config["shaping_start"] == 300_000 and late.shaping_start == 300_000
     assert logged.config["shaping_form"] == "log1p" and logged.shaping_form == "log1p"
-    assert config_hash(logged.config) != config_hash(plain.config)
-    with pytest.raises(PvedError, match="'ppo' has no shaping term"):
-        spec("ppo", "log1p")
+    hashes = {config_hash(x.config) for x in (plain, late, logged)}
+    assert len(hashes) == 3
+    for option in ({"shaping_start": 10}, {"shaping_form": "log1p"}):
+        with pytest.raises(PvedError, match="'ppo' has no shaping term"):
+            spec("ppo", **option)
+    with pytest.raises(PvedError, match="shaping start must be >= 0"):
+        spec("pved", shaping_start=-5)
     with pytest.raises(PvedError, match="unknown shaping form 'log'"):
-        spec("pved", "log")
+        spec("pved", shaping_form="log")
 
 
 def test_shaped_env_refuses_a_state_for_other_copies_and_changes_nothing(
