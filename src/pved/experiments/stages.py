@@ -56,7 +56,7 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import PPOConfig, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
-from pved.transfer.shaping import SHAPING_FORMS, LatentShaping, ShapedBatchedEnv
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv, check_shaping_form
 from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
 
 DEFAULT_RUNS = Path("runs")
@@ -651,8 +651,7 @@ def transfer_spec(
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
-    if shaping_form not in SHAPING_FORMS:  # before any file is looked for
-        raise PvedError(f"unknown shaping form {shaping_form!r}; known: {', '.join(SHAPING_FORMS)}")
+    check_shaping_form(shaping_form)  # before any file is looked for
     preset = get_preset(pair)
     tcfg = preset.transfer
     beta = tcfg.beta if beta is None else beta

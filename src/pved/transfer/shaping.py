@@ -34,6 +34,12 @@ from pved.transfer.source_bank import SourceBank
 SHAPING_FORMS = ("eq10", "log1p")
 
 
+def check_shaping_form(form: str) -> None:
+    """Raise :class:`PvedError` for a shaping form that is not in :data:`SHAPING_FORMS`."""
+    if form not in SHAPING_FORMS:
+        raise PvedError(f"unknown shaping form {form!r}; known: {', '.join(SHAPING_FORMS)}")
+
+
 def task_params(info: dict[str, Any], keys: tuple[str, ...], n: int) -> np.ndarray:
     """The matching keys of ``info`` as one (n, K) array."""
     missing = [k for k in keys if k not in info]
@@ -78,8 +84,7 @@ class LatentShaping:
     ) -> None:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
-        if form not in SHAPING_FORMS:
-            raise PvedError(f"unknown shaping form {form!r}; known: {', '.join(SHAPING_FORMS)}")
+        check_shaping_form(form)
         self.model = model.eval()
         self.bank = bank
         self.beta = float(beta)
