@@ -321,6 +321,16 @@ def _cmd_video(args: argparse.Namespace) -> None:
     print(path)
 
 
+def _cmd_compare(args: argparse.Namespace) -> None:
+    from pved.analysis.compare import compare_runs, format_comparison
+    from pved.runs import atomic_write_json
+
+    result = compare_runs(args.a, args.b, (args.names[0], args.names[1]))
+    if args.json is not None:
+        atomic_write_json(args.json, result)
+    print(format_comparison(result))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``pved`` argument parser (sub-commands)."""
     parser = argparse.ArgumentParser(prog="pved", description=__doc__.splitlines()[0])
@@ -664,6 +674,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")
     p.add_argument("--out", type=Path, help="where claims.json/md go (default: the first DIR)")
     p.set_defaults(func=_cmd_claims)
+
+    p = sub.add_parser(
+        "compare",
+        help="two groups of transfer runs: final, early and drop differences with 95%% CIs",
+        description="Compare the finished transfer runs under --a with those under --b, "
+        "as `pved claims` compares two methods: the difference A - B of the final score, "
+        "the early score and the drop, each with its 95% bootstrap CI (the runs of one PPO "
+        "seed drawn together), and the steps each group's mean curve takes to reach B's "
+        "final mean. A DIR is a run directory or a folder searched for them.",
+    )
+    p.add_argument("--a", nargs="+", type=Path, required=True, metavar="DIR")
+    p.add_argument("--b", nargs="+", type=Path, required=True, metavar="DIR")
+    p.add_argument("--names", nargs=2, default=["A", "B"], metavar=("NAME_A", "NAME_B"))
+    p.add_argument("--json", type=Path, help="also write the numbers here (atomically)")
+    p.set_defaults(func=_cmd_compare)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))

@@ -1,0 +1,246 @@
+"""Two groups of finished transfer runs, compared the way ``pved claims`` compares two
+methods of a protocol, for runs made outside one: an option of ``pved transfer`` (say
+``--shaping-form log1p``) against the protocol's own runs of the same pair, or any two
+sets of seeds a researcher has trained.
+
+Per run, as in :mod:`pved.analysis.claims`: the final score (the pair's metric in
+``result.json``, the run's final evaluation), the early score (the mean of its evaluation
+points at steps <= 25% of its last) and the drop (its best evaluation point minus its
+last). For each, the difference of the two groups' means, A − B, with its 95% percentile
+bootstrap interval (:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples,
+seed 0), the runs of one PPO seed drawn together. And the steps each group's mean curve
+takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`), the paper's
+"steps to reach the baseline's final performance" with B as the baseline.
+
+Only files are read: each run's ``config.json``, ``result.json`` and ``metrics.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pved.analysis.claims import drop, early_score, eval_curve
+from pved.analysis.curves import Curve, bootstrap_difference, steps_to_reach
+from pved.config import get_preset
+from pved.errors import PvedError
+
+REPS = 2000
+"""Bootstrap resamples per interval (as ``pved claims``)."""
+SCORES = ("final", "early", "drop")
+
+
+def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
+    """The finished transfer run directories among ``paths``: each one a run directory
+    itself, or a folder searched (recursively) for run directories. A run directory holds
+    ``config.json`` and ``result.json``; only transfer runs (``stage: transfer``) count.
+
+    Raises PvedError (one line) for a path that does not exist, a run directory that is
+    not a transfer run or not finished, a run given twice, or no run at all."""
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if not path.exists():
+            raise PvedError(f"{path}: no such file or directory")
+        if (path / "config.json").is_file():
+            candidates = [path]
+        else:
+            candidates = sorted(p.parent for p in path.rglob("config.json"))
+            candidates = [c for c in candidates if _stage(c) == "transfer"]
+        for run_dir in candidates:
+            if _stage(run_dir) != "transfer":
+                raise PvedError(f"{run_dir}: not a transfer run (stage {_stage(run_dir)!r})")
+            if not (run_dir / "result.json").is_file():
+                raise PvedError(f"{run_dir}: transfer run not finished (no result.json)")
+            if run_dir.resolve() in {f.resolve() for f in found}:
+                raise PvedError(f"{run_dir} is given twice: give each run once")
+            found.append(run_dir)
+    if not found:
+        raise PvedError(f"no finished transfer run under {', '.join(map(str, paths))}")
+    return found
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """A JSON object from ``path``; PvedError (one line) when unreadable or not an object."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise PvedError(f"{path}: unreadable ({type(exc).__name__})") from exc
+    if not isinstance(data, dict):
+        raise PvedError(f"{path}: not a JSON object")
+    return data
+
+
+def _stage(run_dir: Path) -> object:
+    """The ``stage`` a run directory's config.json records (None when it records none)."""
+    config = _read_json(run_dir / "config.json").get("config")
+    return config.get("stage") if isinstance(config, dict) else None
+
+
+def _load_run(run_dir: Path) -> dict[str, Any]:
+    """A finished transfer run's pair, length, PPO seed and final results."""
+    config = _read_json(run_dir / "config.json")["config"]
+    ppo = config.get("ppo")
+    if not isinstance(ppo, dict) or not isinstance(config.get("pair"), str):
+        raise PvedError(f"{run_dir / 'config.json'}: no pair or PPO config recorded")
+    return {
+        "dir": run_dir,
+        "pair": config["pair"],
+        "steps": ppo.get("total_steps"),
+        "seed": ppo.get("seed"),
+        "result": _read_json(run_dir / "result.json"),
+    }
+
+
+def _group(name: str, run_dirs: list[Path], metric: str) -> dict[str, Any]:
+    """One group's per-run scores, PPO seeds (the bootstrap's clusters) and mean curve."""
+    runs = [_load_run(d) for d in run_dirs]
+    final, early, drops, series = [], [], [], []
+    for run in runs:
+        value = run["result"].get(f"final/{metric}")
+        if not isinstance(value, int | float) or not math.isfinite(value):
+            raise PvedError(f"{run['dir'] / 'result.json'}: no finite final/{metric}")
+        steps, values = eval_curve(run["dir"] / "metrics.jsonl", metric)
+        if not steps.size or not np.all(np.isfinite(values)):
+            raise PvedError(f"{run['dir'] / 'metrics.jsonl'}: no finite eval/{metric} points")
+        final.append(float(value))
+        early.append(early_score(steps, values))
+        drops.append(drop(values))
+        series.append((steps, values))
+    steps0 = series[0][0]
+    for (steps, _), run in zip(series, runs, strict=True):
+        if not np.array_equal(steps, steps0):
+            raise PvedError(
+                f"{run['dir']} is evaluated at other steps than {runs[0]['dir']}: "
+                "compare runs of one evaluation schedule"
+            )
+    seeds = [r["seed"] if isinstance(r["seed"], int) else f"run{i}" for i, r in enumerate(runs)]
+    return {
+        "name": name,
+        "runs": runs,
+        "scores": {
+            "final": np.asarray(final),
+            "early": np.asarray(early),
+            "drop": np.asarray(drops),
+        },
+        "clusters": seeds,
+        "curve": Curve(name, steps0, np.stack([v for _, v in series]), list(range(len(runs)))),
+    }
+
+
+def compare_runs(
+    a: Sequence[Path], b: Sequence[Path], names: tuple[str, str] = ("A", "B"), *, seed: int = 0
+) -> dict[str, Any]:
+    """Compare the finished transfer runs under ``a`` with those under ``b`` (paths as
+    :func:`find_transfer_runs` takes them). Every run must be of one pair and one length.
+
+    Returns ``{"pair", "metric", "steps", "groups": {name: {"runs", "dirs", "seeds",
+    "final": {"mean", "mean_ci"}, "early_mean", "drop_mean", "steps_to_<B>_final"}},
+    "<B>_final": B's final mean curve point, "<B>_improved", "diff": {score: {"diff",
+    "diff_ci"}}}``, differences A − B. Raises PvedError (one line) for bad input."""
+    name_a, name_b = names
+    if name_a == name_b:
+        raise PvedError(f"the two groups need different names, got {name_a!r} twice")
+    dirs_a, dirs_b = find_transfer_runs(a), find_transfer_runs(b)
+    both = {d.resolve() for d in dirs_a} & {d.resolve() for d in dirs_b}
+    if both:
+        raise PvedError(f"{sorted(both)[0]} is in both groups")
+    first = _load_run(dirs_a[0])
+    for run_dir in dirs_a + dirs_b:
+        run = _load_run(run_dir)
+        if run["pair"] != first["pair"]:
+            raise PvedError(
+                f"{run_dir} is a run of {run['pair']!r}, {dirs_a[0]} of {first['pair']!r}: "
+                "compare runs of one pair"
+            )
+        if run["steps"] != first["steps"]:
+            raise PvedError(
+                f"{run_dir} ran {run['steps']} steps, {dirs_a[0]} {first['steps']}: "
+                "compare runs of one length"
+            )
+    metric = get_preset(first["pair"]).metric
+    ga, gb = _group(name_a, dirs_a, metric), _group(name_b, dirs_b, metric)
+    if not np.array_equal(ga["curve"].steps, gb["curve"].steps):
+        raise PvedError(
+            "the two groups are evaluated at different steps: "
+            "compare runs of one evaluation schedule"
+        )
+    baseline = gb["curve"].mean
+    b_final, b_improved = float(baseline[-1]), bool(baseline[-1] > baseline[0])
+    out: dict[str, Any] = {
+        "pair": first["pair"],
+        "metric": metric,
+        "steps": first["steps"],
+        "groups": {},
+        f"{name_b}_final": b_final,
+        f"{name_b}_improved": b_improved,
+        "diff": {},
+    }
+    for score in SCORES:
+        d = bootstrap_difference(
+            ga["scores"][score],
+            gb["scores"][score],
+            reps=REPS,
+            seed=seed,
+            clusters_a=ga["clusters"],
+            clusters_b=gb["clusters"],
+        )
+        out["diff"][score] = {"diff": d["diff"], "diff_ci": d["diff_ci"]}
+        for g, key in ((ga, "a"), (gb, "b")):
+            entry = out["groups"].setdefault(
+                g["name"],
+                {
+                    "runs": len(g["runs"]),
+                    "dirs": [str(r["dir"]) for r in g["runs"]],
+                    "seeds": [r["seed"] for r in g["runs"]],
+                },
+            )
+            if score == "final":
+                entry["final"] = {"mean": d[key]["mean"], "mean_ci": d[key]["mean_ci"]}
+            else:
+                entry[f"{score}_mean"] = d[key]["mean"]
+    for g in (ga, gb):
+        # A baseline whose mean curve ends where it began learned nothing, and every
+        # group would "reach" it at once (as in steps_to_baseline_finals).
+        reached = steps_to_reach(g["curve"], b_final) if b_improved else None
+        out["groups"][g["name"]][f"steps_to_{name_b}_final"] = reached
+    return out
+
+
+def format_comparison(result: dict[str, Any]) -> str:
+    """A Markdown table of :func:`compare_runs`' result."""
+    names = list(result["groups"])
+    name_b = names[1]
+
+    def interval(ci: list[float]) -> str:
+        return f"[{ci[0]:.3f}, {ci[1]:.3f}]"
+
+    def reach(steps: int | None) -> str:
+        if not result[f"{name_b}_improved"]:
+            return f"– ({name_b} did not improve)"
+        return "not reached" if steps is None else f"{steps:,}"
+
+    lines = [
+        f"{result['pair']}, {result['metric']} after {result['steps']:,} steps "
+        "(95% bootstrap CIs, the runs of one PPO seed drawn together)",
+        "",
+        f"| group | runs | final mean [95% CI] | early mean | drop mean | steps to "
+        f"{name_b}'s final ({result[f'{name_b}_final']:.3f}) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name in names:
+        g = result["groups"][name]
+        lines.append(
+            f"| {name} | {g['runs']} | {g['final']['mean']:.3f} {interval(g['final']['mean_ci'])}"
+            f" | {g['early_mean']:.3f} | {g['drop_mean']:.3f} "
+            f"| {reach(g[f'steps_to_{name_b}_final'])} |"
+        )
+    lines.append("")
+    for score in SCORES:
+        d = result["diff"][score]
+        lines.append(f"{score}: {names[0]} − {name_b} = {d['diff']:+.3f} {interval(d['diff_ci'])}")
+    return "\n".join(lines)
