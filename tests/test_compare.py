@@ -113,7 +113,7 @@ def test_a_baseline_that_learned_nothing_gives_no_step_counts(tmp_path: Path) ->
         ("nan", "no finite final/success_rate"),
         ("schedule", "one evaluation schedule"),
         ("schedule_within", "is evaluated at other steps than"),
-        ("foreign", "unreadable"),
+        ("foreign", "is not readable JSON"),
         ("empty", "no finished transfer run"),
     ],
 )

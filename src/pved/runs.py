@@ -108,6 +108,15 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
+def read_json(path: Path) -> Any:
+    """The JSON in ``path``; PvedError (one line, naming the file) when it cannot be read
+    or parsed: a missing, truncated or foreign file."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise PvedError(f"{path} is not readable JSON ({type(err).__name__})") from None
+
+
 def atomic_write_json(path: Path, obj: Any) -> None:
     """Atomically write ``obj`` as indented JSON."""
     atomic_write_bytes(path, (json.dumps(to_jsonable(obj), indent=2) + "\n").encode())

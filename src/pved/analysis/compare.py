@@ -17,7 +17,6 @@ Only files are read: each run's ``config.json``, ``result.json`` and ``metrics.j
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,9 +25,10 @@ from typing import Any
 import numpy as np
 
 from pved.analysis.claims import drop, early_score, eval_curve
-from pved.analysis.curves import Curve, bootstrap_difference, steps_to_reach
+from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
 from pved.config import get_preset
 from pved.errors import PvedError
+from pved.runs import read_json
 
 REPS = 2000
 """Bootstrap resamples per interval (as ``pved claims``)."""
@@ -43,6 +43,7 @@ def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
     Raises PvedError (one line) for a path that does not exist, a run directory that is
     not a transfer run or not finished, a run given twice, or no run at all."""
     found: list[Path] = []
+    seen: set[Path] = set()
     for path in map(Path, paths):
         if not path.exists():
             raise PvedError(f"{path}: no such file or directory")
@@ -52,12 +53,14 @@ def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
             candidates = sorted(p.parent for p in path.rglob("config.json"))
             candidates = [c for c in candidates if _stage(c) == "transfer"]
         for run_dir in candidates:
-            if _stage(run_dir) != "transfer":
-                raise PvedError(f"{run_dir}: not a transfer run (stage {_stage(run_dir)!r})")
+            stage = _stage(run_dir)
+            if stage != "transfer":
+                raise PvedError(f"{run_dir}: not a transfer run (stage {stage!r})")
             if not (run_dir / "result.json").is_file():
                 raise PvedError(f"{run_dir}: transfer run not finished (no result.json)")
-            if run_dir.resolve() in {f.resolve() for f in found}:
+            if run_dir.resolve() in seen:
                 raise PvedError(f"{run_dir} is given twice: give each run once")
+            seen.add(run_dir.resolve())
             found.append(run_dir)
     if not found:
         raise PvedError(f"no finished transfer run under {', '.join(map(str, paths))}")
@@ -66,10 +69,7 @@ def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
 
 def _read_json(path: Path) -> dict[str, Any]:
     """A JSON object from ``path``; PvedError (one line) when unreadable or not an object."""
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise PvedError(f"{path}: unreadable ({type(exc).__name__})") from exc
+    data = read_json(path)
     if not isinstance(data, dict):
         raise PvedError(f"{path}: not a JSON object")
     return data
@@ -96,9 +96,8 @@ def _load_run(run_dir: Path) -> dict[str, Any]:
     }
 
 
-def _group(name: str, run_dirs: list[Path], metric: str) -> dict[str, Any]:
+def _group(name: str, runs: list[dict[str, Any]], metric: str) -> dict[str, Any]:
     """One group's per-run scores, PPO seeds (the bootstrap's clusters) and mean curve."""
-    runs = [_load_run(d) for d in run_dirs]
     final, early, drops, series = [], [], [], []
     for run in runs:
         value = run["result"].get(f"final/{metric}")
@@ -149,28 +148,29 @@ def compare_runs(
     both = {d.resolve() for d in dirs_a} & {d.resolve() for d in dirs_b}
     if both:
         raise PvedError(f"{sorted(both)[0]} is in both groups")
-    first = _load_run(dirs_a[0])
-    for run_dir in dirs_a + dirs_b:
-        run = _load_run(run_dir)
+    runs_a, runs_b = [_load_run(d) for d in dirs_a], [_load_run(d) for d in dirs_b]
+    first = runs_a[0]
+    for run in runs_a + runs_b:
         if run["pair"] != first["pair"]:
             raise PvedError(
-                f"{run_dir} is a run of {run['pair']!r}, {dirs_a[0]} of {first['pair']!r}: "
-                "compare runs of one pair"
+                f"{run['dir']} is a run of {run['pair']!r}, {first['dir']} of "
+                f"{first['pair']!r}: compare runs of one pair"
             )
         if run["steps"] != first["steps"]:
             raise PvedError(
-                f"{run_dir} ran {run['steps']} steps, {dirs_a[0]} {first['steps']}: "
+                f"{run['dir']} ran {run['steps']} steps, {first['dir']} {first['steps']}: "
                 "compare runs of one length"
             )
     metric = get_preset(first["pair"]).metric
-    ga, gb = _group(name_a, dirs_a, metric), _group(name_b, dirs_b, metric)
+    ga, gb = _group(name_a, runs_a, metric), _group(name_b, runs_b, metric)
     if not np.array_equal(ga["curve"].steps, gb["curve"].steps):
         raise PvedError(
             "the two groups are evaluated at different steps: "
             "compare runs of one evaluation schedule"
         )
-    baseline = gb["curve"].mean
-    b_final, b_improved = float(baseline[-1]), bool(baseline[-1] > baseline[0])
+    reach = steps_to_baseline_finals([ga["curve"], gb["curve"]], [name_b])
+    b_final = float(gb["curve"].mean[-1])
+    b_improved = f"{name_b}_final" in reach[name_b]
     out: dict[str, Any] = {
         "pair": first["pair"],
         "metric": metric,
@@ -204,10 +204,9 @@ def compare_runs(
             else:
                 entry[f"{score}_mean"] = d[key]["mean"]
     for g in (ga, gb):
-        # A baseline whose mean curve ends where it began learned nothing, and every
-        # group would "reach" it at once (as in steps_to_baseline_finals).
-        reached = steps_to_reach(g["curve"], b_final) if b_improved else None
-        out["groups"][g["name"]][f"steps_to_{name_b}_final"] = reached
+        # None where B's mean curve ends where it began: it learned nothing to reach
+        key = f"steps_to_{name_b}_final"
+        out["groups"][g["name"]][key] = reach[g["name"]].get(key)
     return out
 
 

@@ -28,7 +28,7 @@ from pved.analysis.curves import reach_cell
 from pved.config import get_preset
 from pved.envs.registry import env_id
 from pved.errors import PvedError
-from pved.runs import atomic_write_bytes
+from pved.runs import atomic_write_bytes, read_json
 
 VIDEO_SUFFIXES = (".gif", ".mp4", ".webm")
 # the rollouts rendered for a protocol's methods: long enough to see the gait or the
@@ -106,13 +106,6 @@ class _Parts:
 
 
 # ---------------------------------------------------------------------- small helpers
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise PvedError(f"{path} is not readable JSON ({type(err).__name__})") from None
-
-
 def _fmt(value: Any, digits: int = 3) -> str:
     """A table cell: fixed decimals for floats, '–' for missing or NaN."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
@@ -189,7 +182,7 @@ def _figure(path: Path, caption: str) -> str:
 def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     """A ``pved protocol`` output: curves-<pair>.png and the summary.json table."""
     plan_file = directory / "protocol.json"
-    plan = _read_json(plan_file)
+    plan = read_json(plan_file)
     pairs = plan.get("pairs") if isinstance(plan, dict) else None
     if not isinstance(pairs, list):
         raise PvedError(f"{plan_file} is not a pved protocol plan (no list of pairs)")
@@ -198,7 +191,7 @@ def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     summary_file = directory / "summary.json"
     if not summary_file.is_file():
         raise PvedError(f"{directory} has no summary.json yet; `pved plot {directory}` writes it")
-    summary = _read_json(summary_file)
+    summary = read_json(summary_file)
     try:
         info = summary["pairs"][pair]
         metric, methods = info["metric"], info["methods"]
@@ -272,7 +265,7 @@ def _add_method_videos(
 def _add_transfer_report(pair: str, directory: Path, parts: _Parts) -> None:
     """A runs-mode ``pved report`` folder: curves_*.png and the results.json table."""
     results_file = directory / "results.json"
-    results = _read_json(results_file)
+    results = read_json(results_file)
     if not isinstance(results, dict) or not isinstance(results.get("rows"), list):
         raise PvedError(f"{results_file} is not a pved transfer report (no rows)")
     if "pair" in results and results["pair"] != pair:
@@ -322,7 +315,7 @@ def _add_tsne(directory: Path, parts: _Parts) -> None:
     numbers_file = directory / "numbers.json"
     numbers: Any = None
     if numbers_file.is_file():
-        numbers = _read_json(numbers_file)
+        numbers = read_json(numbers_file)
         if not isinstance(numbers, dict) or "shared" not in numbers:
             raise PvedError(f"{numbers_file} is not pved tsne numbers (no 'shared' entry)")
     for name, what in (("tsne_shared", "shared"), ("tsne_individual", "individual")):
