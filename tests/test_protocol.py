@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch
+from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.config import get_budget, get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import (
@@ -341,8 +341,8 @@ def _deaf_to_sigterm(marker: str) -> None:
     time.sleep(120)
 
 
-def _blas_paths_of_worker() -> tuple[str | None, str | None]:
-    return loaded_kernel(), loaded_mkl_branch()
+def _blas_paths_of_worker() -> tuple[str | None, str | None, str | None]:
+    return loaded_kernel(), loaded_mkl_branch(), loaded_numpy_simd()
 
 
 def _ship_this_module_to(backend: str) -> None:
@@ -716,11 +716,11 @@ def test_runner_workers_run_one_blas_kernel_and_mkl_branch_everywhere(
     # the one before): unpinned, a model retrained on another machine differs. The
     # workers run the kernel this process pinned on importing pved, as this one does.
     # Likewise torch's MKL, whose branch decides the QR behind the policies' orthogonal
-    # initialisation.
+    # initialisation, and numpy's SIMD group, whose exp and log the models' likelihoods use.
     if not kernel_env():
         pytest.skip("this CPU cannot run the portable kernel, so none is pinned")
-    # PORTABLE_KERNEL and PORTABLE_MKL_BRANCH, unless set by the caller
-    expected = (os.environ["OPENBLAS_CORETYPE"], os.environ["MKL_CBWR"])
+    # PORTABLE_KERNEL, PORTABLE_MKL_BRANCH and numpy's AVX2 group, unless set by the caller
+    expected = (os.environ["OPENBLAS_CORETYPE"], os.environ["MKL_CBWR"], loaded_numpy_simd())
     assert _blas_paths_of_worker() == expected  # the test process (conftest imports pved)
     _ship_this_module_to(backend)
     jobs = [Job("k", _blas_paths_of_worker, {})]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pved.blas import loaded_kernel, loaded_mkl_branch
+from pved.blas import loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.errors import PvedError
 from pved.runs import (
     Run,
@@ -55,6 +55,7 @@ def test_run_lifecycle_skip_if_done_and_config_change(tmp_path: Path) -> None:
     # the BLAS kernel it ran under, which decides a run's last digits
     assert config["blas_kernel"] == loaded_kernel() and config["blas_kernel"]
     assert config["mkl_branch"] == loaded_mkl_branch() and config["mkl_branch"]
+    assert config["numpy_simd"] == loaded_numpy_simd() and config["numpy_simd"]
     # another config: not done, and its start clears the old run's checkpoints
     other = Run(path, {"lr": 3e-4}, tensorboard=False)
     assert not other.is_done()
@@ -159,6 +160,7 @@ def test_a_resumed_run_keeps_the_provenance_of_its_earlier_starts(tmp_path: Path
         "git_commit": "abc",
         "blas_kernel": "SkylakeX",
         "mkl_branch": None,
+        "numpy_simd": None,
     }
     assert config["previous_starts"][1]["mkl_branch"] == loaded_mkl_branch()
     assert len(config["previous_starts"]) == 2

@@ -1,6 +1,6 @@
 """One BLAS code path on every machine, so that a stage remade elsewhere computes as before.
 
-Two libraries pick their code by CPU when they load, and round differently on each path:
+Three libraries pick their code by CPU when they load, and round differently on each path:
 
 - OpenBLAS, numpy's BLAS, picks a kernel: ``SkylakeX`` where there is AVX-512,
   ``Haswell`` where there is AVX2. PPO's and the models' numpy backends and every
@@ -13,11 +13,18 @@ Two libraries pick their code by CPU when they load, and round differently on ea
   (docs/decisions.md, "pved pins MKL's branch"). MKL honours a pinned CPU branch
   (``AVX2``, ``AVX512``) only on Intel's CPUs and runs its own choice (``AUTO``)
   elsewhere; ``COMPATIBLE`` it honours on every CPU, and computes the same there.
+- numpy itself dispatches its elementwise functions (``exp``, ``log``, ``expm1``,
+  ``log1p``, ``power``) to the widest SIMD group the CPU has, and its AVX-512 groups
+  (``X86_V4`` and above) round otherwise than its AVX2 group (``X86_V3``). The Gaussian
+  log-likelihoods of the models run through them, and so did the pairs' rollouts: on an
+  AVX-512 Xeon, humanoid-ant's pairing dataset and models came out otherwise under each
+  group (docs/decisions.md, "pved pins numpy's SIMD group").
 
-Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell`` and ``MKL_CBWR=COMPATIBLE``
-where the CPU runs those paths and the caller has not set them. Each takes effect in every process
-that loads its library after the import (pved's CLI, its scripts, the protocol's
-workers: :data:`pved.experiments.runner.WORKER_ENV`), and in none that loaded it before.
+Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell``, ``MKL_CBWR=COMPATIBLE`` and
+``NPY_DISABLE_CPU_FEATURES`` (numpy's groups above ``X86_V3``) where the CPU runs those
+paths and the caller has not set them. Each takes effect in every process that loads its
+library after the import (pved's CLI, its scripts, the protocol's workers:
+:data:`pved.experiments.runner.WORKER_ENV`), and in none that loaded it before.
 
 This module must not import numpy or torch at import time: :mod:`pved`'s ``__init__``
 calls :func:`pin_portable_kernels` before anything loads OpenBLAS or MKL.
@@ -35,6 +42,10 @@ PORTABLE_KERNEL = "Haswell"
 #: MKL takes on AMD's CPUs as on Intel's (it ignores ``AVX2`` on an AMD EPYC and runs
 #: ``AUTO``, which rounds otherwise).
 PORTABLE_MKL_BRANCH = "COMPATIBLE"
+#: numpy's SIMD groups switched off, for the same CPUs: every dispatch target of numpy
+#: 2.4.6 above ``X86_V3`` (AVX2 and FMA), so that numpy runs its AVX2 code everywhere.
+#: A group the CPU lacks is off anyway; naming it costs nothing.
+PORTABLE_NUMPY_OFF = "X86_V4 AVX512_ICL AVX512_SPR"
 
 # MKL's MKL_CBWR_* codes (mkl_service.h), as mkl_cbwr_get returns them; 1 (BRANCH_OFF)
 # is no pin: MKL's own choice by CPU.
@@ -69,12 +80,17 @@ def _cpu_runs_portable_paths() -> bool:
 
 
 def kernel_env() -> dict[str, str]:
-    """``OPENBLAS_CORETYPE`` and ``MKL_CBWR`` for pved's processes: each the caller's own
-    where set, else :data:`PORTABLE_KERNEL` and :data:`PORTABLE_MKL_BRANCH` on a CPU
-    with AVX2 and FMA, else absent (the library's own choice)."""
+    """``OPENBLAS_CORETYPE``, ``MKL_CBWR`` and ``NPY_DISABLE_CPU_FEATURES`` for pved's
+    processes: each the caller's own where set, else :data:`PORTABLE_KERNEL`,
+    :data:`PORTABLE_MKL_BRANCH` and :data:`PORTABLE_NUMPY_OFF` on a CPU with AVX2 and
+    FMA, else absent (the library's own choice)."""
     portable = _cpu_runs_portable_paths()
     env: dict[str, str] = {}
-    for var, value in (("OPENBLAS_CORETYPE", PORTABLE_KERNEL), ("MKL_CBWR", PORTABLE_MKL_BRANCH)):
+    for var, value in (
+        ("OPENBLAS_CORETYPE", PORTABLE_KERNEL),
+        ("MKL_CBWR", PORTABLE_MKL_BRANCH),
+        ("NPY_DISABLE_CPU_FEATURES", PORTABLE_NUMPY_OFF),
+    ):
         if os.environ.get(var):
             env[var] = os.environ[var]
         elif portable:
@@ -133,3 +149,18 @@ def loaded_mkl_branch() -> str | None:
         return None
     code = int(cbwr_get(_MKL_CBWR_BRANCH))
     return _MKL_BRANCHES.get(code, str(code))
+
+
+def loaded_numpy_simd() -> str | None:
+    """The widest SIMD group numpy dispatches to in this process (``X86_V3`` under the
+    pin, ``X86_V4`` or ``AVX512_ICL`` on an AVX-512 CPU without it), or None where numpy
+    does not say (no group of its own dispatch list runs). Each run's ``config.json``
+    records it."""
+    # numpy's own record of its dispatch (what `numpy.show_runtime` prints); private,
+    # hence the guard: a numpy without it records None rather than failing a run
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:
+        return None
+    running = [group for group in __cpu_dispatch__ if __cpu_features__.get(group)]
+    return running[-1] if running else None

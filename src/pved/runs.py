@@ -30,7 +30,7 @@ from typing import Any
 import torch
 
 from pved import __version__
-from pved.blas import loaded_kernel, loaded_mkl_branch
+from pved.blas import loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.errors import PvedError
 
 CHECKPOINT_DIR = "checkpoints"
@@ -219,10 +219,11 @@ def release_claim(run_dir: Path, holder: str | None = None) -> bool:
 
 def _provenance(config_record: Mapping[str, Any]) -> dict[str, Any]:
     """What a ``config.json`` says of the process that wrote it: pved's version and
-    commit, OpenBLAS's kernel, MKL's branch (None where a record predates the field)."""
+    commit, OpenBLAS's kernel, MKL's branch, numpy's SIMD group (None where a record
+    predates the field)."""
     return {
         key: config_record.get(key)
-        for key in ("pved_version", "git_commit", "blas_kernel", "mkl_branch")
+        for key in ("pved_version", "git_commit", "blas_kernel", "mkl_branch", "numpy_simd")
     }
 
 
@@ -335,6 +336,7 @@ class Run:
                 "git_commit": git_commit(),
                 "blas_kernel": loaded_kernel(),
                 "mkl_branch": loaded_mkl_branch(),
+                "numpy_simd": loaded_numpy_simd(),
                 **({"previous_starts": previous_starts} if previous_starts else {}),
             },
         )
