@@ -28,10 +28,10 @@ What is committed is smaller still: ``pved archive summary`` writes the protocol
 transfer run (by its path under ``runs/``) to its ``result``, ``config`` and evaluation
 ``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``), and, under
 ``runs/`` as an archive lays them out, the models that those runs read (a few hundred kB
-each): a model remade on another machine is not the same model to the bit (pairs and
-models remade on an AVX-512 Xeon differed from an AVX2 EPYC's under every pin pved
-sets; docs/decisions.md, "The summary keeps the models its runs read"), and the runs of
-one protocol that read one model must go on reading it. ``restore`` reads either kind
+each): a model remade on another machine is the same model to the bit only where every
+code path its making takes is pinned (:mod:`pved.blas`; docs/decisions.md, "The summary
+keeps the models its runs read"), and the runs of one protocol that read one model must
+go on reading it. ``restore`` reads either kind
 of directory; from a summary the runs come back without their policies, and the
 protocol makes again only what the runs still to come need. A
 summary directory of a finished protocol also holds what ``make publish`` copied there
