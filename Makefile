@@ -35,8 +35,7 @@ reproduce: $(STAMP)
 # slimmed (results, configs, curves, models; no checkpoints, datasets or banks), into
 # archive/<pair>-<budget>/ (kept beside the repository, not committed), and writes the
 # committed record, docs/protocol/<pair>-<budget>/finished-transfer-runs.json (each finished
-# transfer run's result, config and curve) with the models those runs read beside it
-# (runs/ there); `make restore` puts back into
+# transfer run's result, config and curve); `make restore` puts back into
 # reports/<pair>-<budget>/ what either holds (for a published pair, its summary too, so it
 # reads as finished), and `make reproduce` then goes on with the rest.
 archive: $(STAMP)

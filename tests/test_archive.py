@@ -20,7 +20,7 @@ from pved.analysis.curves import read_eval_points
 from pved.errors import PvedError
 from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
-from pved.experiments.stages import file_digest, transfer, transfer_spec
+from pved.experiments.stages import transfer, transfer_spec
 from pved.runs import RESTORED_FROM, Run, atomic_write_json
 
 
@@ -129,25 +129,17 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     code, out, err = run_cli(capsys, "archive", "summary", "--protocol", lost,
                           "--archive", summary)  # fmt: skip
     assert code == 0, err
-    # the tuning run and the PPO run, and the model the tuning run read (PPO reads none)
-    assert out.strip().endswith("2 runs, 1 models, 1 written")
+    assert out.strip().endswith("2 runs, 1 written")  # the tuning run and the PPO run
     text = (summary / SUMMARY_FILE).read_text()
-    assert save_summary(lost, summary) == {"runs": 2, "models": 1, "written": 0}
+    assert save_summary(lost, summary) == {"runs": 2, "written": 0}
     assert (summary / SUMMARY_FILE).read_text() == text
     runs = json.loads(text)
     assert list(runs) == sorted(runs) and all("/transfer/" in rel for rel in runs)
-    model = Path("reacher/model/pved/seed0/model.pt")
-    read = {entry["config"]["config"].get("model") for entry in runs.values()} - {None}
-    assert read == {file_digest(summary / "runs" / model)}
     shutil.rmtree(lost)
 
-    # the model comes back as it was made: a model remade elsewhere may differ in its
-    # last digits, and the runs still to come must read the one these runs read
-    restored = _restore_by_cli(capsys, summary, lost, "3 restored, 0 exists")
+    restored = _restore_by_cli(capsys, summary, lost, "2 restored, 0 exists")
     original = _finished_results(ProtocolPlan.load(protocol))
-    assert set(restored) == {key for key in original if "/transfer/" in key or "/model/" in key}
-    assert (lost / "runs" / model).read_bytes() == (made_runs / model).read_bytes()
-    assert restored["reacher/model/pved/init0"]["model"] == str(lost / "runs" / model)
+    assert set(restored) == {key for key in original if "/transfer/" in key}
     for rel in runs:  # the learning curves read back as they were made
         made = read_eval_points(made_runs / rel / "metrics.jsonl", "eval/return_mean")
         back = read_eval_points(lost / "runs" / rel / "metrics.jsonl", "eval/return_mean")
@@ -163,15 +155,9 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
             assert Run(spec.run_dir, spec.config).is_done(), key
             result = json.loads((spec.run_dir / "result.json").read_text())
             assert "policy" not in result and result[RESTORED_FROM] == str(summary)
-    # summarised again there, the record does not say where this machine got it from,
-    # and the model's files are the first summary's (the same path here, so its result too)
-    again_summary = tmp_path / "again-summary"
-    save_summary(lost, again_summary)
-    assert RESTORED_FROM not in (again_summary / SUMMARY_FILE).read_text()
-    assert not (summary / "runs" / model.parent / "metrics.jsonl").exists()
-    for name in ("model.pt", "config.json", "result.json"):
-        kept = again_summary / "runs" / model.parent / name
-        assert kept.read_bytes() == (summary / "runs" / model.parent / name).read_bytes()
+    # summarised again there, the record does not say where this machine got it from
+    save_summary(lost, tmp_path / "again-summary")
+    assert RESTORED_FROM not in (tmp_path / "again-summary" / SUMMARY_FILE).read_text()
     # archived again there: the restored PVED run comes without a policy, as it was
     # restored, and the archive restores it as done on a third machine
     again = tmp_path / "again"
@@ -193,11 +179,6 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     save_summary(protocol, both)
     assert restore_archive(both, tmp_path / "p") == {"restored": 3, "exists": 0}
     assert (tmp_path / "p/runs" / tuning / "policy.pt").is_file()
-
-    # a model that no summarised run read is not kept: without the tuning run, none is
-    shutil.rmtree(lost / "runs" / tuning)
-    assert save_summary(lost, tmp_path / "no-model") == {"runs": 1, "models": 0, "written": 1}
-    assert not (tmp_path / "no-model/runs").exists()
 
 
 @pytest.mark.slow
@@ -266,17 +247,17 @@ def test_a_published_protocol_comes_back_finished(
     atomic_write_json(published / "selection.json", {"reacher": {}})
     (published / "summary.md").write_text("# Protocol summary\n")
     back = tmp_path / "back"
-    _restore_by_cli(capsys, published, back, "3 restored, 0 exists, 3 summary files")
+    _restore_by_cli(capsys, published, back, "2 restored, 0 exists, 3 summary files")
     for name in ("summary.json", "selection.json", "summary.md"):
         assert (back / name).read_bytes() == (published / name).read_bytes()
-    # restored again: the runs (two and the model) and files there are kept
+    # restored again: the runs and files there are kept
     (back / "summary.md").write_text("edited here\n")
-    _restore_by_cli(capsys, published, back, "0 restored, 3 exists")
+    _restore_by_cli(capsys, published, back, "0 restored, 2 exists")
     assert (back / "summary.md").read_text() == "edited here\n"
     # a record without a published summary restores runs only
     record = tmp_path / "record"
     save_summary(protocol, record)
-    _restore_by_cli(capsys, record, tmp_path / "runs-only", "3 restored, 0 exists")
+    _restore_by_cli(capsys, record, tmp_path / "runs-only", "2 restored, 0 exists")
     assert not (tmp_path / "runs-only" / "summary.json").exists()
     # a summary of another protocol is refused before anything is restored
     atomic_write_json(published / "summary.json", {**summary, "pairs": {"walker-hopper": {}}})

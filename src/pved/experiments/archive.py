@@ -3,8 +3,8 @@
 A protocol at the ``quick`` budget takes days of one core, more than one working session
 on a machine whose disk may not outlive it. ``pved archive save`` copies what its
 finished runs established into a small directory kept beside the repository (run
-directories and policies are not committed, nor models but those below; ``make archive``
-uses ``archive/<pair>-<budget>/``); ``pved archive
+directories, models and policies are not committed; ``make archive`` uses
+``archive/<pair>-<budget>/``); ``pved archive
 restore`` puts it back into a protocol directory, where ``pved protocol`` takes those runs
 as done and goes on with the rest.
 
@@ -26,14 +26,9 @@ policies when a restored plan needs them.
 What is committed is smaller still: ``pved archive summary`` writes the protocol's
 ``protocol.json`` and one file, ``finished-transfer-runs.json``, that maps each finished
 transfer run (by its path under ``runs/``) to its ``result``, ``config`` and evaluation
-``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``), and, under
-``runs/`` as an archive lays them out, the models that those runs read (a few hundred kB
-each): a model remade on another machine is the same model to the bit only where every
-code path its making takes is pinned (:mod:`pved.blas`; docs/decisions.md, "The summary
-keeps the models its runs read"), and the runs of one protocol that read one model must
-go on reading it. ``restore`` reads either kind
-of directory; from a summary the runs come back without their policies, and the
-protocol makes again only what the runs still to come need. A
+``curve`` (``make archive`` keeps it in ``docs/protocol/<pair>-<budget>/``). ``restore``
+reads either kind of directory; from a summary the runs come back without their
+policies, and the protocol makes again only what the runs still to come need. A
 summary directory of a finished protocol also holds what ``make publish`` copied there
 (``summary.json``, ``summary.md``, ``selection.json``); those come back too, so the
 restored protocol reads as finished and ``pved claims`` judges it from its runs, learning
@@ -53,8 +48,7 @@ from typing import Any
 
 from pved.errors import PvedError
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
-from pved.experiments.runner import Job
-from pved.experiments.stages import file_digest, train_model, train_policy, transfer
+from pved.experiments.stages import train_model, train_policy, transfer
 from pved.runs import RESTORED_FROM, atomic_write_bytes, atomic_write_json, repoint_result
 
 RUNS = "runs"
@@ -142,11 +136,9 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
 
 
 def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str, int]:
-    """Write the protocol's ``protocol.json``, ``finished-transfer-runs.json`` and the
-    models its finished transfer runs read (module docstring) into ``summary_dir``;
-    returns counts: ``runs`` summarised, ``models`` kept (those on this machine whose
-    digest a summarised run names) and ``written`` (1 when the summary changed, 0 when
-    it already held them all).
+    """Write the protocol's ``protocol.json`` and ``finished-transfer-runs.json`` (module
+    docstring) into ``summary_dir``; returns counts: ``runs`` summarised and ``written``
+    (1 when the summary changed, 0 when it already held them all).
 
     Keys are sorted and the file indented, so that a commit of a later summary shows the
     runs that finished since as added lines."""
@@ -170,47 +162,9 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
     out = Path(summary_dir)
     out.mkdir(parents=True, exist_ok=True)
     _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
-    models = [_summarised_model(job, plan.runs) for job in _models_read(plan, results, runs)]
-    changed = [
-        _write_if_changed(out / RUNS / rel / name, content)
-        for rel, files in models
-        for name, content in files
-    ]
     text = json.dumps(dict(sorted(runs.items())), indent=1, sort_keys=True) + "\n"
-    changed.append(_write_if_changed(out / SUMMARY_FILE, text.encode()))
-    return {"runs": len(runs), "models": len(models), "written": int(any(changed))}
-
-
-def _models_read(plan: ProtocolPlan, results: dict[str, Any], runs: dict[str, Any]) -> list[Job]:
-    """The finished model jobs of ``plan`` whose ``model.pt`` on this machine has a
-    digest that a summarised transfer run's config names (the run read it)."""
-    named = {entry["config"].get("config", {}).get("model") for entry in runs.values()}
-    named.discard(None)
-    kept = []
-    for job in plan.expand(results):
-        if job.fn is not train_model or job.key not in results or job.run_dir is None:
-            continue
-        artefact = job.run_dir / ARTEFACTS[train_model]
-        if artefact.is_file() and file_digest(artefact) in named:
-            kept.append(job)
-    return kept
-
-
-def _summarised_model(job: Job, runs_root: Path) -> tuple[Path, list[tuple[str, bytes]]]:
-    """A model job's run directory relative to ``runs_root`` and the files the summary
-    keeps of it: the archive's less the training curve (``metrics.jsonl``, which no later
-    stage reads), with ``result.json`` not saying where this machine restored it from (a
-    restored model saved again is then the same file)."""
-    assert job.run_dir is not None  # _models_read keeps jobs with a run directory only
-    files = []
-    for name, content in _archived_files(train_model, None, job.run_dir):
-        if name == "metrics.jsonl":
-            continue
-        if name == "result.json":
-            result = {k: v for k, v in json.loads(content).items() if k != RESTORED_FROM}
-            content = (json.dumps(result, indent=2) + "\n").encode()
-        files.append((name, content))
-    return job.run_dir.relative_to(runs_root), files
+    written = _write_if_changed(out / SUMMARY_FILE, text.encode())
+    return {"runs": len(runs), "written": int(written)}
 
 
 def _summarised_runs(summary_file: Path) -> dict[str, dict[str, Any]]:
