@@ -59,6 +59,7 @@ subspaces: $(STAMP)
 	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
 	$(PY) scripts/shaping_scale.py reports/$(PAIR)-$(BUDGET)
 	$(PY) scripts/pairing_signal.py reports/$(PAIR)-$(BUDGET)
+	$(PY) scripts/source_reading.py reports/$(PAIR)-$(BUDGET)
 	$(if $(filter jaco-fetch,$(PAIR)),$(PY) scripts/peg_success_map.py \
 		reports/$(PAIR)-$(BUDGET) --copies 4)
 
@@ -81,6 +82,7 @@ publish:
 			reports/$(PAIR)-$(BUDGET)/subspaces/chosen.json \
 			reports/$(PAIR)-$(BUDGET)/subspaces/shaping_scale.json \
 			reports/$(PAIR)-$(BUDGET)/subspaces/pairing_signal.json \
+			reports/$(PAIR)-$(BUDGET)/subspaces/source_reading.json \
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	if [ -f reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json ]; then \
 		cp reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json \

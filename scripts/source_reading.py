@@ -1,0 +1,187 @@
+"""A finished protocol's shaped methods read by source policy, and their tuning score
+against their evaluation runs.
+
+The protocol scores every β candidate on source policy 0 only (its tuning seeds), then
+evaluates the chosen one on every source policy. This script says what that hides:
+
+* per method and source policy, the evaluation runs' mean final score, and the Eq. 10
+  term over the last tenth of each run's training rollouts: D (the logged shaping term
+  over −β, so KL nats a step for the Gaussian-code methods, a squared distance for the
+  point-code ones) and the term as a share of the env's own reward a step (mean term over
+  mean env reward, over the source's runs). A source whose bank costs more shows there;
+* per method, the chosen candidate's tuning runs (source 0) against its source-0
+  evaluation runs, which share the model, β and source and differ only in the seed: in
+  how many of the pairings the tuning run scored higher, and the exact two-sided
+  Mann-Whitney p. It does not count that the candidate was picked for its tuning mean, so
+  it says how far the tuning score over-rates the evaluation, not why.
+
+    .venv/bin/python scripts/source_reading.py reports/humanoid-ant-paper
+
+Prints two Markdown tables and writes ``PROTOCOL_DIR/subspaces/source_reading.json`` (part
+of `make subspaces`). Runs restored
+from an archive keep no rollout rows; a source whose runs have none gets no D.
+"""
+
+from __future__ import annotations
+
+import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
+
+# isort: split
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import mannwhitneyu
+
+from pved.analysis.curves import ENV_REWARD_KEY, SHAPING_KEY, read_eval_points
+from pved.runs import atomic_write_json
+
+TAIL = 0.1
+"""The share of a run's rollout records, its last ones, that D is averaged over: one
+rollout is noisy, and the end of training is where the term's cost is what the policy
+settled on."""
+
+
+def rollout_tail(metrics: Path) -> tuple[float, float] | None:
+    """(mean shaping term, mean env reward) a step over the last :data:`TAIL` of a run's
+    rollout records (at least one), or None when it logged none (plain PPO, a restored
+    run)."""
+    shaping = read_eval_points(metrics, SHAPING_KEY)[1]
+    env = read_eval_points(metrics, ENV_REWARD_KEY)[1]
+    if len(shaping) == 0 or len(env) != len(shaping):
+        return None
+    n = max(1, int(len(shaping) * TAIL + 1e-9))  # the guard: 0.1 * 70 is 7.000000000000001
+    return float(shaping[-n:].mean()), float(env[-n:].mean())
+
+
+def term_by_source(
+    runs_root: Path, runs: list[dict[str, Any]], metric: str, beta: float
+) -> dict[int, dict[str, Any]]:
+    """Per source policy of a method's evaluation runs (``summary.json``'s ``runs``): the
+    runs, their mean final ``metric``, and over the runs that logged rollouts the mean D
+    (term / −β) and the term's share of the env reward (mean term / mean env reward)."""
+    out: dict[int, dict[str, Any]] = {}
+    for source in sorted({int(r["source_policy"]) for r in runs}):
+        mine = [r for r in runs if int(r["source_policy"]) == source]
+        tails = [rollout_tail(runs_root / r["key"] / "metrics.jsonl") for r in mine]
+        logged = [t for t in tails if t is not None]
+        entry: dict[str, Any] = {
+            "runs": len(mine),
+            "final_mean": float(np.mean([r[metric] for r in mine])),
+            "runs_with_rollouts": len(logged),
+        }
+        if logged:
+            term = float(np.mean([t for t, _ in logged]))
+            env = float(np.mean([e for _, e in logged]))
+            entry["d_tail"] = -term / beta
+            entry["term_share_of_env_reward"] = -term / env if env != 0 else None
+        out[source] = entry
+    return out
+
+
+def tuning_against_evaluation(tuning: list[float], evaluation: list[float]) -> dict[str, Any]:
+    """How often a tuning score beats an evaluation score over all pairings (ties count
+    half), with the two-sided Mann-Whitney p (scipy's "auto": exact for small samples
+    without ties; None when either side is empty)."""
+    t, e = np.asarray(tuning, dtype=float), np.asarray(evaluation, dtype=float)
+    wins = float((t[:, None] > e[None, :]).sum() + 0.5 * (t[:, None] == e[None, :]).sum())
+    p = None
+    if len(t) and len(e):
+        p = float(mannwhitneyu(t, e, alternative="two-sided").pvalue)
+    return {
+        "tuning_mean": float(t.mean()) if len(t) else None,
+        "evaluation_mean": float(e.mean()) if len(e) else None,
+        "tuning_wins": wins,
+        "pairings": int(len(t) * len(e)),
+        "p_two_sided": p,
+    }
+
+
+def _cells(
+    sources: dict[int, dict[str, Any]], key: str, fmt: str, scale: float = 1.0, unit: str = ""
+) -> str:
+    """One table cell: ``key`` of every source, " / " between, "–" where it is missing."""
+    return " / ".join(
+        "–" if s.get(key) is None else format(scale * s[key], fmt) + unit for s in sources.values()
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
+    args = parser.parse_args()
+
+    summary_file = args.protocol / "summary.json"
+    if not summary_file.is_file():
+        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
+    summary = json.loads(summary_file.read_text())
+    runs_root = args.protocol / "runs"
+    result: dict[str, Any] = {"tail": TAIL, "pairs": {}}
+    by_source_lines, tuning_lines = [], []
+    for pair, entry in summary["pairs"].items():
+        metric = entry["metric"]
+        for method, state in entry["methods"].items():
+            beta = state.get("beta")
+            if beta is None:  # plain PPO and the oracle have no term and no source
+                continue
+            runs = state["runs"]
+            missing = [
+                r["key"] for r in runs if not (runs_root / r["key"] / "metrics.jsonl").is_file()
+            ]
+            if missing:
+                sys.exit(f"{runs_root / missing[0]}: an evaluation run is not in this directory")
+            try:
+                sources = term_by_source(runs_root, runs, metric, float(beta))
+            except (ValueError, KeyError) as exc:  # json's decode error is a ValueError
+                sys.exit(f"{pair}/{method}: a run's metrics.jsonl is not pved's ({exc})")
+            chosen = [
+                c
+                for c in summary["selection"][pair][method]["candidates"]
+                if c["beta"] == beta and c["init"] == state["init"]
+            ]
+            if len(chosen) != 1:
+                sys.exit(f"{pair}/{method}: the chosen candidate is not once in the selection")
+            check = tuning_against_evaluation(
+                chosen[0]["scores"], [r[metric] for r in runs if int(r["source_policy"]) == 0]
+            )
+            result["pairs"].setdefault(pair, {})[method] = {
+                "beta": beta,
+                "init": state["init"],
+                "by_source": sources,
+                "tuning_against_source0_evaluation": check,
+            }
+
+            by_source_lines.append(
+                f"| {pair} | {method} | {beta:g} | {_cells(sources, 'final_mean', '.2f')} | "
+                f"{_cells(sources, 'd_tail', '.3g')} | "
+                f"{_cells(sources, 'term_share_of_env_reward', '.2g', 100, '%')} |"
+            )
+            p = "–" if check["p_two_sided"] is None else f"{check['p_two_sided']:.3f}"
+            tuning_lines.append(
+                f"| {pair} | {method} | {check['tuning_mean']:.2f} | "
+                f"{check['evaluation_mean']:.2f} | {check['tuning_wins']:g} of "
+                f"{check['pairings']} | {p} |"
+            )
+    print(
+        f"| pair | method | β | final mean by source | D, last {TAIL:.0%} of "
+        "rollouts, by source | term / env reward, by source |"
+    )
+    print("|---|---|---|---|---|---|")
+    print("\n".join(by_source_lines))
+    print()
+    print(
+        "| pair | method | tuning mean (source 0) | evaluation mean, source 0 "
+        "| tuning run ahead | Mann-Whitney p (two-sided) |"
+    )
+    print("|---|---|---|---|---|---|")
+    print("\n".join(tuning_lines))
+    out = args.protocol / "subspaces" / "source_reading.json"
+    atomic_write_json(out, result)
+    print(out)
+
+
+if __name__ == "__main__":
+    main()
