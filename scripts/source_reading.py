@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import mannwhitneyu
 
-from pved.analysis.curves import ENV_REWARD_KEY, SHAPING_KEY, read_eval_points
+from pved.analysis.curves import reward_scale
 from pved.runs import atomic_write_json
 
 TAIL = 0.1
@@ -45,37 +45,24 @@ rollout is noisy, and the end of training is where the term's cost is what the p
 settled on."""
 
 
-def rollout_tail(metrics: Path) -> tuple[float, float] | None:
-    """(mean shaping term, mean env reward) a step over the last :data:`TAIL` of a run's
-    rollout records (at least one), or None when it logged none (plain PPO, a restored
-    run)."""
-    shaping = read_eval_points(metrics, SHAPING_KEY)[1]
-    env = read_eval_points(metrics, ENV_REWARD_KEY)[1]
-    if len(shaping) == 0 or len(env) != len(shaping):
-        return None
-    n = max(1, int(len(shaping) * TAIL + 1e-9))  # the guard: 0.1 * 70 is 7.000000000000001
-    return float(shaping[-n:].mean()), float(env[-n:].mean())
-
-
 def term_by_source(
     runs_root: Path, runs: list[dict[str, Any]], metric: str, beta: float
 ) -> dict[int, dict[str, Any]]:
     """Per source policy of a method's evaluation runs (``summary.json``'s ``runs``): the
-    runs, their mean final ``metric``, and over the runs that logged rollouts the mean D
+    runs, their mean final ``metric``, and over the runs that logged rollouts (each
+    averaged over its last :data:`TAIL` of rollouts, :func:`reward_scale`) the mean D
     (term / −β) and the term's share of the env reward (mean term / mean env reward)."""
     out: dict[int, dict[str, Any]] = {}
     for source in sorted({int(r["source_policy"]) for r in runs}):
         mine = [r for r in runs if int(r["source_policy"]) == source]
-        tails = [rollout_tail(runs_root / r["key"] / "metrics.jsonl") for r in mine]
-        logged = [t for t in tails if t is not None]
+        scale = reward_scale([runs_root / r["key"] for r in mine], last_share=TAIL)
         entry: dict[str, Any] = {
             "runs": len(mine),
             "final_mean": float(np.mean([r[metric] for r in mine])),
-            "runs_with_rollouts": len(logged),
+            "runs_with_rollouts": 0 if scale is None else scale["runs"],
         }
-        if logged:
-            term = float(np.mean([t for t, _ in logged]))
-            env = float(np.mean([e for _, e in logged]))
+        if scale is not None:
+            term, env = scale["shaping_last"], scale["env_reward_last"]
             entry["d_tail"] = -term / beta
             entry["term_share_of_env_reward"] = -term / env if env != 0 else None
         out[source] = entry

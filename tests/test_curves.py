@@ -157,6 +157,23 @@ def test_reward_scale_averages_first_and_last_rollouts_over_runs(tmp_path: Path)
     assert reward_scale([ppo]) is None and reward_scale([]) is None
 
 
+def test_reward_scale_last_share_averages_each_runs_last_rollouts(tmp_path: Path) -> None:
+    rows = [(-9.0, 5.0)] * 8 + [(-2.0, 1.0), (-4.0, 3.0)]
+    a = write_rollouts(tmp_path / "a", rows)
+    scale = reward_scale([a], last_share=0.2)  # the last two of ten
+    assert scale is not None
+    assert (scale["shaping_last"], scale["env_reward_last"]) == (-3.0, 2.0)
+    assert scale["shaping_first"] == -9.0  # the first rollout stays the first
+    # a share smaller than one rollout still takes the last one; 0 is the default's
+    last_only = reward_scale([a], last_share=0.01)
+    assert last_only == reward_scale([a]) and last_only is not None
+    assert last_only["shaping_last"] == -4.0
+    every = reward_scale([a], last_share=1.0)
+    assert every is not None and every["shaping_last"] == pytest.approx(-7.8)
+    with pytest.raises(PvedError, match="last_share"):
+        reward_scale([a], last_share=1.5)
+
+
 def two_panels() -> list[Panel]:
     rng = np.random.default_rng(1)
     panels = []

@@ -288,15 +288,21 @@ ENV_REWARD_KEY = "rollout/env_reward"
 """The env's own reward per step, averaged over a PPO rollout."""
 
 
-def reward_scale(run_dirs: Sequence[Path]) -> dict[str, float | int] | None:
+def reward_scale(
+    run_dirs: Sequence[Path], last_share: float = 0.0
+) -> dict[str, float | int] | None:
     """How large the shaping term is against the env's reward, at the start and the end of
     training: each run's first and last logged rollout means of :data:`SHAPING_KEY` and
-    :data:`ENV_REWARD_KEY`, averaged over ``run_dirs``.
+    :data:`ENV_REWARD_KEY`, averaged over ``run_dirs``. With ``last_share`` > 0 a run's
+    "last" is the mean over its last ``last_share`` of rollouts (at least one), where one
+    rollout is too noisy to say what the policy settled on.
 
     Returns ``{"shaping_first", "shaping_last", "env_reward_first", "env_reward_last",
     "runs"}`` (``runs``: how many runs logged both), or None when none did: plain PPO and
     the oracle have no shaping term, and a run restored from an archive keeps only its
     evaluation rows."""
+    if not 0.0 <= last_share <= 1.0:
+        raise PvedError(f"last_share must be in [0, 1], got {last_share}")
     first: list[tuple[float, float]] = []
     last: list[tuple[float, float]] = []
     for run_dir in run_dirs:
@@ -308,7 +314,9 @@ def reward_scale(run_dirs: Sequence[Path]) -> dict[str, float | int] | None:
         if len(shaping) == 0 or len(shaping) != len(env_reward):
             continue
         first.append((shaping[0], env_reward[0]))
-        last.append((shaping[-1], env_reward[-1]))
+        # the guard: a product such as 0.29 * 100 is 28.999999999999996, not 29
+        n = max(1, int(len(shaping) * last_share + 1e-9))
+        last.append((float(shaping[-n:].mean()), float(env_reward[-n:].mean())))
     if not first:
         return None
     start, end = np.mean(first, axis=0), np.mean(last, axis=0)
