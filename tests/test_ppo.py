@@ -112,6 +112,78 @@ def test_rollout_bootstraps_truncation_and_not_termination() -> None:
     np.testing.assert_allclose(adv[ends, 0], td_end, rtol=1e-5)
 
 
+def test_reward_normaliser_sees_the_env_reward_alone_and_scales_the_shaping_linearly() -> None:
+    # A shaped env reports its term in info["reward_shaping"]: the running return std σ
+    # and the ±clip act on the env reward exactly as in plain PPO, and the term is added
+    # as shaping/σ, never clipped; so the optimised reward is (r_env − β·D)/σ.
+    shaping_per_step = -50.0  # far past the clip, as Eq. 10 can be early in training
+
+    class Shaped(PointTarget1D):
+        def __init__(self, n: int, shaped: bool) -> None:
+            super().__init__(n, max_episode_steps=7)
+            self.shaped = shaped
+
+        def step(self, actions: np.ndarray) -> Any:
+            obs, reward, term, trunc, info = super().step(actions)
+            if self.shaped:
+                added = np.full(3, shaping_per_step)
+                info = {**info, "env_reward": reward, "reward_shaping": added}
+                reward = reward + shaping_per_step
+            return obs, reward, term, trunc, info
+
+    cfg = PPOConfig(num_envs=3, steps_per_env=20, minibatch_size=60, hidden_sizes=(4,),
+                    reward_clip=5.0, checkpoint_every=0)  # fmt: skip
+    plain, shaped = _Trainer(Shaped(3, False), cfg), _Trainer(Shaped(3, True), cfg)
+    for tr in (plain, shaped):
+        tr.reset_env(0)
+        tr.rollout()
+    assert shaped.ret_rms.var == plain.ret_rms.var  # the term does not move σ
+    sigma = math.sqrt(float(plain.ret_rms.var) + 1e-8)
+    # per step the shaped reward is the plain one plus shaping/σ (σ of that step; the
+    # last step's σ is the final one)
+    np.testing.assert_allclose(shaped.buf_rew[-1] - plain.buf_rew[-1], shaping_per_step / sigma)
+    assert np.all(np.abs(plain.buf_rew) <= cfg.reward_clip)
+    assert np.all(shaped.buf_rew < -cfg.reward_clip)  # the term itself is not clipped
+    assert 0.0 <= shaped.clipped_share <= 1.0 and shaped.clipped_share == plain.clipped_share
+
+
+def test_ppo_gives_a_shaped_env_the_clipped_mean_action_before_each_step() -> None:
+    # Eq. 10 encodes the policy's mean action (the pairs' and the bank's), not the sampled one
+    class Recording(PointTarget1D):
+        def __init__(self) -> None:
+            super().__init__(2, max_episode_steps=5)
+            self.means: list[np.ndarray] = []
+            self.taken: list[np.ndarray] = []
+
+        def set_mean_actions(self, mean: np.ndarray) -> None:
+            self.means.append(mean.copy())
+
+        def step(self, actions: np.ndarray) -> Any:
+            assert len(self.means) == len(self.taken) + 1  # the mean came first
+            self.taken.append(np.asarray(actions).copy())
+            return super().step(actions)
+
+    env = Recording()
+    cfg = PPOConfig(num_envs=2, steps_per_env=8, minibatch_size=16, hidden_sizes=(4,),
+                    init_log_std=1.0, checkpoint_every=0)  # fmt: skip
+    tr = _Trainer(env, cfg)
+    tr.reset_env(0)
+    tr.rollout()
+    means, taken = np.stack(env.means), np.stack(env.taken)
+    assert means.shape == taken.shape == (8, 2, 1)
+    low, high = env.single_action_space.low, env.single_action_space.high
+    assert np.all(means >= low) and np.all(means <= high)
+    np.testing.assert_allclose(
+        means[:, :, 0], np.clip(_first_means(tr), low, high)[:, :, 0], rtol=1e-5, atol=1e-6
+    )
+    assert not np.allclose(means, taken)  # exploration noise is in the taken actions only
+
+
+def _first_means(tr: _Trainer) -> np.ndarray:
+    """The policy's mean actions (T, N, A) at the rollout's normalised observations."""
+    return np.stack([tr._forward(o.astype(np.float64))[0] for o in tr.buf_obs])
+
+
 # -- loss and gradient --------------------------------------------------------------
 
 

@@ -23,7 +23,14 @@ from pved.rl.policy import load_policy
 from pved.rl.ppo import PPOConfig
 from pved.runs import config_hash
 from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
-from pved.transfer.source_bank import SourceBank, build_source_bank, load_bank, save_bank
+from pved.transfer.source_bank import (
+    SourceBank,
+    bank_time_scale,
+    build_source_bank,
+    load_bank,
+    save_bank,
+    source_steps,
+)
 
 TARGET_PUSH = "pved/Reacher4Push-v0"
 SOURCE_PUSH = "pved/Reacher3Push-v0"
@@ -43,6 +50,15 @@ RESUME_CFG = PPOConfig(
     eval_every=4 * 32,
     seed=2,
 )
+
+
+_MEAN_W = np.random.default_rng(7).normal(0.0, 0.3, (4, 64))
+
+
+def _mean_action(obs: np.ndarray) -> np.ndarray:
+    """A fixed deterministic "policy mean" for the Push target (4 actuators)."""
+    o = np.asarray(obs, dtype=np.float64).ravel()
+    return np.tanh(_MEAN_W[:, : len(o)] @ o)
 
 
 @pytest.fixture(scope="module")
@@ -242,7 +258,10 @@ def test_batched_and_gymnasium_forms_give_identical_shaped_transitions(
     n, steps = 2, 130  # crosses one episode boundary (Push episodes are 100 steps)
     batched = ShapedBatchedEnv(make_batched(TARGET_PUSH, n), shaping, MATCH_KEYS)
     singles = [
-        LatentShapingWrapper(gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS) for _ in range(n)
+        LatentShapingWrapper(
+            gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS, mean_action=_mean_action
+        )
+        for _ in range(n)
     ]
     obs_b, _ = batched.reset(seed=11)
     obs_s = [env.reset(seed=11 + i)[0] for i, env in enumerate(singles)]
@@ -250,6 +269,7 @@ def test_batched_and_gymnasium_forms_give_identical_shaped_transitions(
     rng = np.random.default_rng(3)
     for _ in range(steps):
         act = rng.uniform(-1, 1, (n, batched.single_action_space.shape[0]))
+        batched.set_mean_actions(np.stack([_mean_action(o) for o in obs_b]))
         obs_b, rew_b, term_b, trunc_b, info_b = batched.step(act)
         np.testing.assert_allclose(rew_b, info_b["env_reward"] + info_b["reward_shaping"])
         for i, env in enumerate(singles):
@@ -265,16 +285,86 @@ def test_batched_and_gymnasium_forms_give_identical_shaped_transitions(
 
 
 def test_wrapper_passes_gymnasium_checker(shaping: LatentShaping) -> None:
-    env = LatentShapingWrapper(gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS)
+    env = LatentShapingWrapper(
+        gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS, mean_action=_mean_action
+    )
     check_env(env, skip_render_check=True)
 
 
 def test_stable_baselines3_trains_on_the_wrapper(shaping: LatentShaping) -> None:
     sb3 = pytest.importorskip("stable_baselines3")
-    env = LatentShapingWrapper(gym.make(TARGET_PUSH), shaping, MATCH_KEYS)
+    learner: dict[str, Any] = {}  # the model, built after the env it learns on
+
+    def sb3_mean(obs: np.ndarray) -> np.ndarray:
+        return np.asarray(learner["model"].predict(obs, deterministic=True)[0])
+
+    env = LatentShapingWrapper(gym.make(TARGET_PUSH), shaping, MATCH_KEYS, mean_action=sb3_mean)
     model = sb3.PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    learner["model"] = model
     model.learn(total_timesteps=128)
     assert model.num_timesteps == 128
+
+
+def test_the_shaping_encodes_the_mean_action_not_the_one_taken(shaping: LatentShaping) -> None:
+    # Eq. 10's a_T is the policy's mean action, as in the pairs and the bank: the same
+    # states with different exploration actions get the same term, that of the mean
+    terms = []
+    for taken in (-1.0, 1.0):
+        env = ShapedBatchedEnv(make_batched(TARGET_PUSH, 3), shaping, MATCH_KEYS)
+        obs, _ = env.reset(seed=4)
+        mean = np.stack([_mean_action(o) for o in obs])
+        env.set_mean_actions(mean)
+        act = np.full((3, env.single_action_space.shape[0]), taken)
+        terms.append(env.step(act)[4]["reward_shaping"])
+    np.testing.assert_array_equal(terms[0], terms[1])
+    expected = shaping.reward(obs, np.clip(mean, -1, 1), env._episode, np.zeros(3, dtype=int))
+    np.testing.assert_allclose(terms[0], expected, rtol=1e-6)
+    # without a mean for the step the env says so, rather than encode the action taken
+    with pytest.raises(PvedError, match="mean action"):
+        env.step(act)
+    with pytest.raises(PvedError, match="mean_action"):
+        LatentShapingWrapper(gym.make(TARGET_PUSH).unwrapped, shaping, MATCH_KEYS)
+    # "taken" encodes the action the env is stepped with, as before
+    taken = LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, action="taken")
+    env = ShapedBatchedEnv(make_batched(TARGET_PUSH, 3), taken, MATCH_KEYS)
+    obs, _ = env.reset(seed=4)
+    got = env.step(act)[4]["reward_shaping"]
+    np.testing.assert_allclose(
+        got, taken.reward(obs, act, env._episode, np.zeros(3, dtype=int)), rtol=1e-6
+    )
+    with pytest.raises(PvedError, match="unknown shaping action 'noisy'"):
+        LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, action="noisy")
+
+
+def test_bank_lookup_follows_the_pairs_time_base() -> None:
+    # Humanoid acts every 0.015 s, Ant every 0.05 s: the pairs put Ant step t beside the
+    # Humanoid step taken at the same moment, round(t * 0.05 / 0.015); so must the bank
+    steps = np.arange(400, dtype=np.float32)
+    x = np.repeat(steps[None, :, None], 2, axis=0)  # each row holds its own step index
+    bank = SourceBank(x, np.array([400, 100]), np.zeros((2, 0)), {"dt": 0.015})
+    scale = bank_time_scale("time", bank.dt, 0.05)
+    assert scale == pytest.approx(0.05 / 0.015)
+    t = np.array([0, 3, 30, 60])
+    got = bank.lookup(np.array([0, 0, 0, 1]), t, scale)[:, 0]
+    np.testing.assert_array_equal(got, [0, 10, 100, 99])  # the short episode holds its end
+    # pairs aligned by step keep step t for step t, and equal periods change nothing
+    assert bank_time_scale("subsample", 0.015, 0.05) == 1.0
+    assert bank_time_scale("time", 0.008, 0.008) == 1.0
+    np.testing.assert_array_equal(source_steps(t, np.full(4, 400)), t)
+    with pytest.raises(PvedError, match="control periods must be positive"):
+        bank_time_scale("time", 0.0, 0.05)
+
+
+def test_humanoid_ant_transfer_reads_its_bank_in_physical_time() -> None:
+    # the preset aligns its pairs by time; its agents' envs give the periods
+    from pved.config import get_preset
+
+    preset = get_preset("humanoid-ant")
+    dt_s = make_batched("pved/HumanoidCurve-v0", 1).dt  # type: ignore[attr-defined]
+    dt_t = make_batched("pved/AntCurve-v0", 1).dt  # type: ignore[attr-defined]
+    assert preset.pairing.align == "time"
+    assert bank_time_scale(preset.pairing.align, dt_s, dt_t) == pytest.approx(0.05 / 0.015)
+    assert bank_time_scale(get_preset("walker-hopper").pairing.align, 0.008, 0.008) == 1.0
 
 
 def test_mismatched_model_and_bank_are_rejected(bank: SourceBank) -> None:

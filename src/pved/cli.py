@@ -112,6 +112,7 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
             runs_root=args.runs,
             shaping_start=args.shaping_start,
             shaping_form=args.shaping_form,
+            shaping_action=args.shaping_action,
         )
     )
 
@@ -300,6 +301,23 @@ def _cmd_bound(args: argparse.Namespace) -> None:
     print(result["summary"])
 
 
+def _cmd_audit_shaping(args: argparse.Namespace) -> None:
+    from pved.analysis.shaping_audit import audit_pair
+    from pved.experiments.stages import run_file
+
+    _print_json(
+        audit_pair(
+            args.pair,
+            run_file(args.model, "model.pt", "model"),
+            run_file(args.bank, "bank.npz", "source bank"),
+            steps=args.steps,
+            betas=args.betas,
+            seed=args.seed,
+            out=args.out,
+        )
+    )
+
+
 def _cmd_video(args: argparse.Namespace) -> None:
     from pved.analysis.video import render_rollout
     from pved.errors import PvedError
@@ -448,6 +466,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="eq10: the paper's -beta*D (default); log1p: -beta*log(1+D), which keeps the "
         "term's ordering but compresses its range (not in the paper)",
     )
+    p.add_argument(
+        "--shaping-action",
+        default="mean",
+        choices=("mean", "taken"),
+        help="the target action Eq. 10 encodes: mean (the policy's mean action, as in the "
+        "pairs and the bank; default) or taken (the sampled exploration action)",
+    )
     p.set_defaults(func=_cmd_transfer)
 
     p = sub.add_parser("evaluate", help="success rate / return of a saved policy")
@@ -531,10 +556,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target-policy", type=Path, required=True)
     p.add_argument("--source-policy", type=Path, help="default: the shipped target-task one")
     p.add_argument("--episodes", type=int, default=10)
-    p.add_argument("--quantile", type=float, default=0.95, help="quantile of the KL taken as δ")
+    p.add_argument(
+        "--quantile",
+        type=float,
+        default=0.95,
+        help="a quantile of the KL reported beside δ (Theorem 1's δ is the max KL)",
+    )
     p.add_argument("--gamma", type=float, default=0.99)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_bound)
+
+    p = sub.add_parser(
+        "audit-shaping",
+        help="Eq. 10 at the start of a transfer run: mean vs sampled action, reward clip",
+        description="On rollouts of a fresh transfer policy: D with the mean and with the "
+        "sampled action on the same states, how often PPO's reward clip binds with the "
+        "normaliser on env reward + shaping and on the env reward alone, per beta.",
+    )
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
+    p.add_argument("--bank", type=Path, required=True, help="bank.npz or its run directory")
+    p.add_argument("--steps", type=int, default=32_768, help="env steps of the rollout")
+    p.add_argument("--betas", type=float, nargs="+", help="default: the pair's beta grid")
+    p.add_argument("--seed", type=int, default=2000, help="the transfer run's PPO seed")
+    p.add_argument("--out", type=Path, help="also write the JSON here")
+    p.set_defaults(func=_cmd_audit_shaping)
 
     p = sub.add_parser("video", help="render a rollout of a policy to GIF (or MP4)")
     p.add_argument("--policy", type=Path, required=True, help="policy.pt or its run directory")

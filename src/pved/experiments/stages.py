@@ -56,8 +56,19 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import PPOConfig, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
-from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv, check_shaping_form
-from pved.transfer.source_bank import build_source_bank, load_bank, save_bank
+from pved.transfer.shaping import (
+    LatentShaping,
+    ShapedBatchedEnv,
+    check_shaping_action,
+    check_shaping_form,
+)
+from pved.transfer.source_bank import (
+    bank_dt,
+    bank_time_scale,
+    build_source_bank,
+    load_bank,
+    save_bank,
+)
 
 DEFAULT_RUNS = Path("runs")
 
@@ -630,6 +641,7 @@ class TransferSpec:
     beta: float
     shaping_start: int
     shaping_form: str
+    shaping_action: str
 
 
 def transfer_spec(
@@ -648,10 +660,12 @@ def transfer_spec(
     run_name: str | None = None,
     shaping_start: int = 0,
     shaping_form: str = "eq10",
+    shaping_action: str = "mean",
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     check_shaping_form(shaping_form)  # before any file is looked for
+    check_shaping_action(shaping_action)
     preset = get_preset(pair)
     tcfg = preset.transfer
     beta = tcfg.beta if beta is None else beta
@@ -699,6 +713,15 @@ def transfer_spec(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
+        # How Eq. 10 is computed (docs/decisions.md): the bank read on the pairs' time
+        # base, the policy's mean action encoded, and the reward normaliser on the env
+        # reward alone. Runs made before these existed computed otherwise, so their
+        # config hashes differ and they are not taken for these.
+        config.update(
+            bank_time=preset.pairing.align,
+            shaping_action=shaping_action,
+            reward_normalizer="env-only",
+        )
         # both only when set, so the runs made before they existed keep their config hashes
         if shaping_start:
             config["shaping_start"] = shaping_start
@@ -722,6 +745,7 @@ def transfer_spec(
         beta=beta,
         shaping_start=shaping_start,
         shaping_form=shaping_form,
+        shaping_action=shaping_action,
     )
 
 
@@ -742,6 +766,7 @@ def transfer(
     progress: bool = True,
     shaping_start: int = 0,
     shaping_form: str = "eq10",
+    shaping_action: str = "mean",
 ) -> dict[str, Any]:
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
@@ -756,7 +781,9 @@ def transfer(
     target task's default env, so every method is measured alike. ``shaping_start``
     (env steps; not in the paper) holds the shaping term at 0 until then;
     ``shaping_form="log1p"`` (not in the paper) shapes with −β·log(1 + D) in place of
-    Eq. 10's −β·D (:class:`LatentShaping`)."""
+    Eq. 10's −β·D (:class:`LatentShaping`). ``shaping_action``: the target action Eq. 10
+    encodes, ``"mean"`` (the policy's mean action, as in the pairs and the bank) or
+    ``"taken"`` (the sampled exploration action)."""
     torch.set_num_threads(1)
     preset = get_preset(pair)
     spec = transfer_spec(
@@ -774,6 +801,7 @@ def transfer(
         run_name=run_name,
         shaping_start=shaping_start,
         shaping_form=shaping_form,
+        shaping_action=shaping_action,
     )
     name, ppo, shaping_inputs = spec.env_id, spec.ppo, spec.shaping_inputs
     eval_episodes, final_episodes = spec.eval_episodes, spec.final_episodes
@@ -796,6 +824,10 @@ def transfer(
             env.robot_state_indices,
             start=spec.shaping_start,
             form=spec.shaping_form,
+            time_scale=bank_time_scale(
+                preset.pairing.align, bank_dt(bank), getattr(env, "dt", None)
+            ),
+            action=spec.shaping_action,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
@@ -1023,5 +1055,16 @@ def bound(
         quantile=quantile,
         gamma=gamma,
         match_keys=preset.bank_match_keys,
+        time_scale=bank_time_scale(preset.pairing.align, _env_dt(src_id), _env_dt(tgt_id)),
     )
     return {"summary": result.summary(), **result.as_dict()}
+
+
+def _env_dt(name: str) -> float | None:
+    """The control period of env ``name`` (None for an env without one)."""
+    env = make_batched(name, 1)
+    try:
+        dt = getattr(env, "dt", None)
+    finally:
+        env.close()
+    return None if dt is None else float(dt)

@@ -475,10 +475,16 @@ class _Trainer:
         self.ep_ret = np.zeros(config.num_envs, dtype=np.float64)
         self.ep_len = np.zeros(config.num_envs, dtype=np.int64)
         self.reward_terms: dict[str, float] = {}  # per-step means of the last rollout
+        self.clipped_share = 0.0  # share of the last rollout's steps the reward clip bound
         self.obs = np.zeros((config.num_envs, self.obs_dim), dtype=np.float64)
         self.next_checkpoint = config.checkpoint_every
         self.next_eval = 0
         self.policy = Policy(self.net, self.obs_norm, self.low, self.high, {"seed": config.seed})
+        # a shaped env that encodes the policy's mean action takes it before each step
+        give_mean = getattr(env, "set_mean_actions", None)
+        self.give_mean: Callable[[np.ndarray], None] | None = (
+            give_mean if callable(give_mean) else None
+        )
 
         T, N, A = config.steps_per_env, config.num_envs, self.act_dim
         self.buf_obs = np.zeros((T, N, self.obs_dim), dtype=np.float32)
@@ -589,6 +595,7 @@ class _Trainer:
         # per-step sums of the env's named reward terms (and of the shaping wrapper's
         # env_reward / reward_shaping), so a shaped run shows what each part contributed
         term_sums: dict[str, float] = {}
+        clip_hits = 0  # steps whose normalised env reward the clip bound
         for t in range(cfg.steps_per_env):
             obs_n = self.obs_norm(self.obs)
             mean, value = self._forward(obs_n)
@@ -598,6 +605,8 @@ class _Trainer:
             self.buf_act[t] = action
             self.buf_logp[t] = gaussian_log_prob_np(action, mean, self.log_std)
             self.buf_val[t] = value
+            if self.give_mean is not None:  # a shaped env encodes the mean action (Eq. 10)
+                self.give_mean(np.clip(mean.astype(np.float64), self.low, self.high))
 
             next_obs, reward, terminated, truncated, info = self.env.step(
                 np.clip(action.astype(np.float64), self.low, self.high)
@@ -625,13 +634,24 @@ class _Trainer:
                 self.ep_len[idx] = 0
 
             if cfg.normalize_reward:
-                self.ret_acc = self.ret_acc * cfg.gamma + reward
+                # The normaliser and the clip see the env reward alone, as in plain PPO; a
+                # shaping term (info["reward_shaping"]) is divided by the same scale and
+                # never clipped, so the reward optimised is (r_env − β·D)/σ_env: Eq. 10's
+                # sum times one positive number, linear in β (docs/decisions.md,
+                # "Reward normalisation under shaping").
+                shaping = info.get("reward_shaping")
+                shaping = None if shaping is None else np.asarray(shaping, dtype=np.float64)
+                env_part = reward
+                if shaping is not None:
+                    env_part = np.asarray(info.get("env_reward", reward - shaping), np.float64)
+                self.ret_acc = self.ret_acc * cfg.gamma + env_part
                 self.ret_rms.update(self.ret_acc)
-                reward = np.clip(
-                    reward / math.sqrt(float(self.ret_rms.var) + 1e-8),
-                    -cfg.reward_clip,
-                    cfg.reward_clip,
-                )
+                scale = math.sqrt(float(self.ret_rms.var) + 1e-8)
+                scaled = env_part / scale
+                clip_hits += int(np.count_nonzero(np.abs(scaled) > cfg.reward_clip))
+                reward = np.clip(scaled, -cfg.reward_clip, cfg.reward_clip)
+                if shaping is not None:
+                    reward = reward + shaping / scale
                 self.ret_acc[done] = 0.0
             self.buf_rew[t] = reward
             self.buf_done[t] = done
@@ -647,6 +667,7 @@ class _Trainer:
                 self.buf_trunc[t, idx] = True
         self.global_step += cfg.batch_size
         self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
+        self.clipped_share = clip_hits / cfg.batch_size
         return episodes
 
     def advantages(self) -> tuple[np.ndarray, np.ndarray]:
@@ -868,6 +889,7 @@ def train_ppo(
             scalars["time/steps_per_s"] = config.batch_size / dt
             scalars["time/steps_per_s_mean"] = trainer.global_step / max(trainer.elapsed, 1e-9)
             scalars.update({f"rollout/{k}": v for k, v in trainer.reward_terms.items()})
+            scalars["rollout/clipped_share"] = trainer.clipped_share
             if episodes["return"]:
                 scalars["episode/return_mean"] = float(np.mean(episodes["return"]))
                 scalars["episode/length_mean"] = float(np.mean(episodes["length"]))

@@ -2,9 +2,15 @@
 
     r_t = r_env(s_T, a_T) − β · KL( q_φS(c | s_S, a_S) ‖ q_φT(c | s_T, a_T) )
 
-(s_S, a_S) is the source's state-action at the same time step of the bank episode
-matched to this target episode (``source_bank.py``). For a model with a deterministic
-shared space the distance replaces the KL (``SharedSpaceModel.shaping``).
+(s_S, a_S) is the source's state-action at the same moment of the bank episode matched
+to this target episode, on the time base the pairs were aligned on (``source_bank.py``).
+For a model with a deterministic shared space the distance replaces the KL
+(``SharedSpaceModel.shaping``).
+
+a_T is the target policy's mean action at s_T (clipped to the action box), as in the
+pairs the encoders were trained on and in the bank, not the sampled exploration action
+(``SHAPING_ACTIONS``; docs/decisions.md, "Which action Eq. 10 encodes"). A learner that
+cannot give its mean action passes the action it took (``action="taken"``).
 
 Two forms, one computation (:class:`LatentShaping`):
 
@@ -18,6 +24,7 @@ sum to the reward) and the unshaped env reward in ``info["env_reward"]``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -32,6 +39,17 @@ from pved.transfer.source_bank import SourceBank
 # How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
 # −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping").
 SHAPING_FORMS = ("eq10", "log1p")
+
+
+# Which target action Eq. 10 encodes: "mean" is the policy's mean action at s_T (what the
+# pairs and the bank record), "taken" the sampled, clipped action the env was stepped with.
+SHAPING_ACTIONS = ("mean", "taken")
+
+
+def check_shaping_action(action: str) -> None:
+    """Raise :class:`PvedError` for an action choice not in :data:`SHAPING_ACTIONS`."""
+    if action not in SHAPING_ACTIONS:
+        raise PvedError(f"unknown shaping action {action!r}; known: {', '.join(SHAPING_ACTIONS)}")
 
 
 def check_shaping_form(form: str) -> None:
@@ -71,6 +89,12 @@ class LatentShaping:
             (docs/results.md), so β can only trade a term that swamps the task reward
             for one too small to steer. log(1 + D) equals D for small D and grows
             slowly for large D, which keeps the term's ordering and compresses its range.
+        time_scale: source steps per target step in the bank lookup
+            (:func:`pved.transfer.source_bank.bank_time_scale`): 1 for pairs aligned by
+            step, dt_T/dt_S for pairs aligned by physical time.
+        action: which target action the wrappers encode, ``"mean"`` (the policy's mean
+            action, given to the wrapper before each step; the default) or ``"taken"``
+            (the action the env is stepped with).
     """
 
     def __init__(
@@ -81,16 +105,23 @@ class LatentShaping:
         robot_state_indices: np.ndarray,
         start: int = 0,
         form: str = "eq10",
+        time_scale: float = 1.0,
+        action: str = "mean",
     ) -> None:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
         check_shaping_form(form)
+        check_shaping_action(action)
+        if not (np.isfinite(time_scale) and time_scale > 0):
+            raise PvedError(f"the bank's time scale must be a positive number, not {time_scale}")
         self.model = model.eval()
         self.bank = bank
         self.beta = float(beta)
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
         self.start = int(start)
         self.form = form
+        self.time_scale = float(time_scale)
+        self.action = action
         # rows shaped so far: the clock ``start`` is read against (saved with the env)
         self.steps = 0
         if bank.dim != model.source_dim:
@@ -115,7 +146,7 @@ class LatentShaping:
                 f"target state-action has dim {x_t.shape[1]}, the model's target input is "
                 f"{self.model.target_dim}"
             )
-        x_s = self.bank.lookup(episode, t)
+        x_s = self.bank.lookup(episode, t, self.time_scale)
         with torch.no_grad():
             distance = self.model.shaping(
                 torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
@@ -142,6 +173,13 @@ class ShapedBatchedEnv(BatchedEnv):
         self._t = np.zeros(self.num_envs, dtype=np.int64)
         self._episode = np.zeros(self.num_envs, dtype=np.int64)
         self._rng: np.random.Generator | None = None
+        self._mean: np.ndarray | None = None
+
+    def set_mean_actions(self, mean: np.ndarray) -> None:
+        """The policy's mean actions (N, act_dim) at the current observations, which the
+        next :meth:`step` encodes when the shaping's action is ``"mean"``; pved's PPO
+        calls it before every step."""
+        self._mean = np.asarray(mean, dtype=np.float64).reshape(self.num_envs, -1)
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
@@ -160,7 +198,18 @@ class ShapedBatchedEnv(BatchedEnv):
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Info]:
         actions = np.asarray(actions, dtype=np.float64)
-        shaping = self.shaping.reward(self._obs, actions, self._episode, self._t)
+        encoded = actions
+        if self.shaping.action == "mean":
+            if self._mean is None:
+                raise PvedError(
+                    "the shaping encodes the policy's mean action: call set_mean_actions "
+                    "before each step, or build LatentShaping with action='taken'"
+                )
+            encoded = np.clip(
+                self._mean, self.single_action_space.low, self.single_action_space.high
+            )
+            self._mean = None  # one step's mean, never reused for the next
+        shaping = self.shaping.reward(self._obs, encoded, self._episode, self._t)
         obs, env_reward, terminated, truncated, info = self.env.step(actions)
         info = dict(info)
         info["env_reward"] = env_reward
@@ -217,6 +266,10 @@ class LatentShapingWrapper(
 ):
     """The Eq. 10 shaping as a plain Gymnasium wrapper around one target-task env.
 
+    ``mean_action(obs) -> action`` gives the learner's mean (deterministic) action at an
+    observation; the wrapper encodes it when the shaping's action is ``"mean"`` (the
+    default), and the action taken when it is ``"taken"``.
+
     It records its constructor arguments (as Gymnasium's own wrappers do), so
     ``env.spec`` can rebuild the wrapped env, which Gymnasium's env checker relies on.
     """
@@ -226,11 +279,21 @@ class LatentShapingWrapper(
         env: gym.Env[np.ndarray, np.ndarray],
         shaping: LatentShaping,
         match_keys: tuple[str, ...],
+        mean_action: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, shaping=shaping, match_keys=match_keys)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, shaping=shaping, match_keys=match_keys, mean_action=mean_action
+        )
         gym.Wrapper.__init__(self, env)
+        if shaping.action == "mean" and mean_action is None:
+            raise PvedError(
+                "the shaping encodes the policy's mean action: give mean_action (e.g. "
+                "lambda obs: model.predict(obs, deterministic=True)[0] for Stable-Baselines3), "
+                "or build LatentShaping with action='taken'"
+            )
         self.shaping = shaping
         self.match_keys = match_keys
+        self.mean_action = mean_action
         self._obs: np.ndarray = np.zeros(env.observation_space.shape or ())
         self._t = 0
         self._episode = 0
@@ -252,6 +315,13 @@ class LatentShapingWrapper(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         act = np.asarray(action, dtype=np.float64).reshape(1, -1)
+        if self.shaping.action == "mean" and self.mean_action is not None:
+            space = self.env.action_space
+            act = np.clip(
+                np.asarray(self.mean_action(self._obs), dtype=np.float64).reshape(1, -1),
+                getattr(space, "low", -np.inf),
+                getattr(space, "high", np.inf),
+            )
         shaping = float(
             self.shaping.reward(
                 self._obs[None], act, np.array([self._episode]), np.array([self._t])

@@ -4,8 +4,9 @@ Eq. 10 needs, at every step of the target agent, a source state-action (s_S, a_S
 compare with. The paper does not pair trajectories on the target task, so we roll out
 the source's target-task policy on many task instances once, and at transfer time match
 each target episode to the bank episode whose task parameters are nearest (e.g. the
-button's start position) and each target step t to that episode's step t (the last step
-once the source episode has ended).
+button's start position) and each target step t to the bank episode's step taken at the
+same moment as the pairs were aligned (:func:`bank_time_scale`; the last step once the
+source episode has ended).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from pved import __version__
+from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
 from pved.pairing.collect import rollout_first_episodes
@@ -27,6 +29,35 @@ from pved.rl.policy import Policy
 from pved.runs import atomic_write_bytes
 
 FORMAT = "pved-source-bank/1"
+
+#: Alignments that pair the two agents' steps by physical time when both control periods
+#: are known (``phase`` re-pairs around the time partner; see ``pved.pairing.align``).
+TIME_ALIGNMENTS = ("time", "phase")
+
+
+def bank_time_scale(alignment: str, dt_source: float | None, dt_target: float | None) -> float:
+    """Source steps per target step at transfer, as the pairs the model learned from.
+
+    Pairs aligned by physical time (``time``, and ``phase`` around it) pair the target's
+    step t, taken at t·dt_T seconds, with the source step taken at the same moment,
+    t·dt_T/dt_S; so must the bank, or the model compares states it never saw paired
+    (Humanoid acts every 0.015 s, Ant every 0.05 s: Ant step t is Humanoid step 3.33·t).
+    Alignments by step index (``subsample``, ``dtw``) keep step t for step t: at transfer
+    the target episode's length is not known in advance, so t itself is the nearest
+    reading of a subsampling by length.
+    """
+    if alignment in TIME_ALIGNMENTS and dt_source is not None and dt_target is not None:
+        if not (dt_source > 0 and dt_target > 0):
+            raise PvedError(f"control periods must be positive, got {dt_source}, {dt_target}")
+        return float(dt_target) / float(dt_source)
+    return 1.0
+
+
+def source_steps(t: np.ndarray, lengths: np.ndarray, time_scale: float = 1.0) -> np.ndarray:
+    """Source step (N,) for target steps ``t`` (N,) in episodes of ``lengths`` (N,):
+    round(t·time_scale), held at the episode's last step once it has ended."""
+    step = np.rint(np.asarray(t, dtype=np.float64) * time_scale).astype(np.int64)
+    return np.minimum(step, np.asarray(lengths, dtype=np.int64) - 1)
 
 
 @dataclass
@@ -38,7 +69,8 @@ class SourceBank:
             its last row.
         lengths: (E,) episode lengths.
         keys: (E, K) task parameters the episodes are matched on.
-        header: JSON-able description (env id, policy, match keys, dims, seed).
+        header: JSON-able description (env id, policy, match keys, dims, seed, the
+            source's control period ``dt`` where its env has one).
     """
 
     x: np.ndarray
@@ -70,10 +102,34 @@ class SourceBank:
         dist = ((params[:, None, :] - self.keys[None, :, :]) ** 2).sum(-1)
         return np.asarray(dist.argmin(1), dtype=np.int64)
 
-    def lookup(self, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Source state-actions (N, D_S) at step ``t`` (N,) of bank episodes ``episode`` (N,)."""
-        step = np.minimum(t, self.lengths[episode] - 1)
+    @property
+    def dt(self) -> float | None:
+        """The source's control period in seconds (None: the env had none)."""
+        dt = self.header.get("dt")
+        return None if dt is None else float(dt)
+
+    def lookup(self, episode: np.ndarray, t: np.ndarray, time_scale: float = 1.0) -> np.ndarray:
+        """Source state-actions (N, D_S) of bank episodes ``episode`` (N,) at the source
+        step matching target step ``t`` (N,): :func:`source_steps` with ``time_scale``
+        source steps per target step (:func:`bank_time_scale`)."""
+        step = source_steps(t, self.lengths[episode], time_scale)
         return np.asarray(self.x[episode, step])
+
+
+def bank_dt(bank: SourceBank) -> float | None:
+    """The source's control period: the bank header's, or for a bank written before the
+    header kept it, that of the env named in its header (None when neither has one)."""
+    if "dt" in bank.header:
+        return bank.dt
+    name = bank.header.get("env_id")
+    if not name:
+        return None
+    env = make_batched(str(name), 1)
+    try:
+        dt = getattr(env, "dt", None)
+    finally:
+        env.close()
+    return None if dt is None else float(dt)
 
 
 def build_source_bank(
@@ -112,6 +168,8 @@ def build_source_bank(
         "seed": seed,
         "success_rate": float(np.mean([e.success for e in eps])),
         "robot_state_indices": [int(i) for i in idx],
+        # the source's control period, which the lookup's time base needs
+        "dt": getattr(env, "dt", None),
     }
     return SourceBank(x, np.array([len(e.obs) for e in eps], dtype=np.int64), keys, full_header)
 
