@@ -151,12 +151,25 @@ def test_estimate_bound_estimators() -> None:
     res = estimate_bound(
         kl, np.concatenate(r_s), np.concatenate(r_t), r_s, r_t, quantile=0.9, gamma=0.5
     )
-    assert res.delta == pytest.approx(0.9) and res.kl_max == pytest.approx(1.0)
+    # Theorem 1 assumes KL <= δ for every pair: δ is the max, the quantile only a reading
+    assert res.delta == pytest.approx(1.0) and res.kl_max == pytest.approx(1.0)
+    assert res.delta_quantile == pytest.approx(0.9)
     assert (res.a, res.b) == (-2.0, 0.0)
     assert res.m == pytest.approx(0.5)
-    assert res.bound == pytest.approx(0.5 + 1.0 * math.sqrt(1.8))
+    assert res.bound == pytest.approx(0.5 + 1.0 * math.sqrt(2.0))
+    assert res.bound_quantile == pytest.approx(0.5 + 1.0 * math.sqrt(1.8))
     assert res.gap == pytest.approx(abs(np.mean([-1.2, -0.5, 0.1, -2.5, -1.0]) + 0.9))
     assert res.held and res.horizon == 3
+    assert not res.vacuous  # √(2·1) < 2
+    # one pair at KL 2 makes √(2δ) = 2: the bound is then no tighter than (b − a) + m
+    kl_out = np.append(kl, 2.0)
+    out = estimate_bound(
+        kl_out, np.append(np.concatenate(r_s), -1.0), np.append(np.concatenate(r_t), -1.0),
+        r_s, r_t, quantile=0.9,
+    )  # fmt: skip
+    assert out.vacuous and out.delta == 2.0
+    assert out.bound == pytest.approx(out.m + (out.b - out.a))
+    assert "vacuous" in out.summary() and "vacuous" not in res.summary()
 
 
 def test_gaussian_kl_zero_for_equal_and_known_value() -> None:

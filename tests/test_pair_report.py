@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import os
 import re
 import shutil
@@ -379,3 +380,21 @@ def test_every_image_decodes_in_headless_chromium(tmp_path: Path) -> None:
     broken.write_text(html[:start] + "A" * 400 + html[start + 400 :])
     loaded, total = _images_in_browser(broken, tmp_path)
     assert total == 8 and loaded == 7
+
+
+def test_a_bound_line_from_before_delta_was_the_max_is_read_with_the_max(tmp_path: Path) -> None:
+    """bound.txt files published before 2026-12-05 took a KL quantile for δ; the report
+    reads them with δ = the max KL they print (humanoid-ant's paper protocol)."""
+    line = (
+        "Theorem 1: delta(q0.95)=8.516 (KL max 172.7), [a,b]=[-1.03,7.139], m=6.793 -> "
+        "bound 23.65 vs gap 4.232 (held); Corollary 1 (gamma=0.99): bound 2365 (finite "
+        "n=1000: 2365) vs return gap 469.7 (held)"
+    )
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "bound.txt").write_text(line + "\n")
+    page = build_pair_report("humanoid-ant", [tmp_path / "old"], tmp_path / "r.html").read_text()
+    bound = 6.793 + (7.139 + 1.03) / 2 * math.sqrt(2 * 172.7)
+    assert f"{bound:.4g}" in page and f"{172.7:.4g}" in page
+    assert "vacuous" in page and '<td class="num">yes</td>' in page
+    # the quantile's right-hand side is shown, named as what it is
+    assert "23.65" in page and "not a bound" in page

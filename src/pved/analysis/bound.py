@@ -14,11 +14,16 @@ of the source and the transferred target policy on the target task:
 
 * pairs: episode ``e`` of both agents starts from seed ``seed + e`` on the same task
   instance (the source's ``match_keys`` task parameters are given to the target), and
-  target step t is matched to source step min(t, T_S − 1) of that episode, which is the
-  source bank's time matching in transfer (same task key, repeat the last row past the
-  end of the source episode);
-* δ: a quantile (default 0.95) of the per-pair KL between the shared Gaussian posteriors
-  (the max is reported too; the theorem needs the max, a quantile ignores rare outliers);
+  target step t is matched to the source step of that episode the source bank gives it
+  in transfer (:func:`pved.transfer.source_bank.source_steps`: the same moment where the
+  pairs were aligned by physical time, else step t; the last row past the end of the
+  source episode);
+* δ: the theorem's hypothesis is KL ≤ δ for every pair, so δ is the largest per-pair KL
+  between the shared Gaussian posteriors seen (a supremum estimated from below by a
+  finite sample). A quantile of the KL (default 0.95) is reported beside it as a reading
+  of typical pairs, with its own right-hand side, which is *not* the theorem's bound;
+* vacuous: both rewards lie in [a − m, b + m], so their means differ by at most
+  (b − a) + m whatever δ; the bound says more than that only when √(2δ) < 2 (δ < 2);
 * [a, b]: the observed range of the source's per-step reward (its env's reward, the
   full Push reward for Reacher3);
 * m: max over matched pairs of |r_T − r_S|, with the target evaluated under the same
@@ -43,6 +48,7 @@ from pved.analysis.tsne import EpisodeRecord, model_inputs, run_paired_episodes
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.rl.policy import Policy
+from pved.transfer.source_bank import source_steps
 
 
 def theorem1_rhs(delta: float, a: float, b: float, m: float) -> float:
@@ -85,8 +91,11 @@ def discounted_return(rewards: np.ndarray, gamma: float) -> float:
 class BoundResult:
     """Theorem 1 / Corollary 1 estimates beside the measured gaps (see module doc)."""
 
-    delta: float  # the ``quantile`` of the per-pair KL
+    delta: float  # the largest per-pair KL: Theorem 1's δ
     quantile: float
+    delta_quantile: float  # the ``quantile`` of the per-pair KL (typical pairs; not δ)
+    bound_quantile: float  # Eq. 13's right-hand side with ``delta_quantile`` (not a bound)
+    vacuous: bool  # √(2δ) ≥ 2: the bound is no tighter than (b − a) + m
     kl_max: float
     kl_mean: float
     a: float
@@ -115,19 +124,26 @@ class BoundResult:
 
     def summary(self) -> str:
         return (
-            f"Theorem 1: delta(q{self.quantile:g})={self.delta:.4g} (KL max {self.kl_max:.4g}), "
-            f"[a,b]=[{self.a:.4g},{self.b:.4g}], m={self.m:.4g} -> bound {self.bound:.4g} vs "
+            f"Theorem 1: delta=max KL={self.delta:.4g} (q{self.quantile:g} "
+            f"{self.delta_quantile:.4g}, mean {self.kl_mean:.4g}), "
+            f"[a,b]=[{self.a:.4g},{self.b:.4g}], m={self.m:.4g} -> bound {self.bound:.4g}"
+            f"{' (vacuous: sqrt(2 delta) >= 2)' if self.vacuous else ''} vs "
             f"gap {self.gap:.4g} ({'held' if self.held else 'VIOLATED'}); "
+            f"with the q{self.quantile:g} KL in place of delta {self.bound_quantile:.4g} "
+            "(typical pairs, not the theorem's bound); "
             f"Corollary 1 (gamma={self.gamma}): bound {self.return_bound:.4g} "
             f"(finite n={self.horizon}: {self.return_bound_finite:.4g}) vs return gap "
             f"{self.return_gap:.4g} ({'held' if self.return_held else 'VIOLATED'})"
         )
 
 
-def match_steps(source: EpisodeRecord, target: EpisodeRecord) -> np.ndarray:
-    """Source step index for each target step: t ↦ min(t, T_S − 1) (the source bank's
-    lookup in transfer repeats the last source row past its end)."""
-    return np.minimum(np.arange(target.length), source.length - 1)
+def match_steps(
+    source: EpisodeRecord, target: EpisodeRecord, time_scale: float = 1.0
+) -> np.ndarray:
+    """Source step index for each target step, as the source bank's lookup in transfer
+    gives it: round(t·time_scale), the last source row past its end."""
+    t = np.arange(target.length)
+    return source_steps(t, np.full(len(t), source.length), time_scale)
 
 
 def estimate_bound(
@@ -149,20 +165,25 @@ def estimate_bound(
     kl = np.asarray(kl, dtype=np.float64)
     r_s_all = np.concatenate(source_episode_rewards)
     r_t_all = np.concatenate(target_episode_rewards)
-    delta = float(np.quantile(kl, quantile))
+    # Theorem 1 assumes KL ≤ δ for every pair: its δ is the supremum, read as the max
+    delta = max(float(kl.max()), 0.0)
+    delta_q = float(np.quantile(kl, quantile))
     a, b = float(r_s_all.min()), float(r_s_all.max())
     m = float(np.max(np.abs(np.asarray(r_target_matched) - np.asarray(r_source_matched))))
-    bound = theorem1_rhs(max(delta, 0.0), a, b, m)
+    bound = theorem1_rhs(delta, a, b, m)
     gap = abs(float(r_t_all.mean()) - float(r_s_all.mean()))
     horizon = max(len(r) for r in (*source_episode_rewards, *target_episode_rewards))
     ret_s = float(np.mean([discounted_return(r, gamma) for r in source_episode_rewards]))
     ret_t = float(np.mean([discounted_return(r, gamma) for r in target_episode_rewards]))
-    ret_bound = corollary1_rhs(max(delta, 0.0), a, b, m, gamma)
-    ret_bound_n = corollary1_rhs(max(delta, 0.0), a, b, m, gamma, horizon)
+    ret_bound = corollary1_rhs(delta, a, b, m, gamma)
+    ret_bound_n = corollary1_rhs(delta, a, b, m, gamma, horizon)
     return_gap = abs(ret_t - ret_s)
     return BoundResult(
         delta=delta,
         quantile=quantile,
+        delta_quantile=delta_q,
+        bound_quantile=theorem1_rhs(max(delta_q, 0.0), a, b, m),
+        vacuous=math.sqrt(2.0 * delta) >= 2.0,
         kl_max=float(kl.max()),
         kl_mean=float(kl.mean()),
         a=a,
@@ -206,6 +227,7 @@ def theorem1_bound(
     target_env_kwargs: Mapping[str, Any] | None = None,
     max_steps: int | None = None,
     deterministic: bool = True,
+    time_scale: float = 1.0,
 ) -> BoundResult:
     """Estimate Theorem 1 and Corollary 1 on rollouts of the source and the transferred
     target policy on the target task, and compare with the measured gaps.
@@ -215,6 +237,8 @@ def theorem1_bound(
         source_env_kwargs: the source env's reward is its default (full for Reacher3).
         target_env_kwargs: default ``{"reward": "full"}``, so that R_T and R_S are the
             same reward terms and m compares like with like.
+        time_scale: source steps per target step, as in transfer
+            (:func:`pved.transfer.source_bank.bank_time_scale`).
         Others as :func:`pved.analysis.tsne.embed_rollouts`.
     """
     tgt_kwargs = {"reward": "full"} if target_env_kwargs is None else dict(target_env_kwargs)
@@ -234,7 +258,7 @@ def theorem1_bound(
     model.eval()
     kls, r_s, r_t = [], [], []
     for ep_s, ep_t in zip(src, tgt, strict=True):
-        j = match_steps(ep_s, ep_t)
+        j = match_steps(ep_s, ep_t, time_scale)
         q_s = model.shared_source(model_inputs(ep_s, idx_s)[j])
         q_t = model.shared_target(model_inputs(ep_t, idx_t))
         if q_s.logvar is None or q_t.logvar is None:

@@ -53,14 +53,28 @@ _MEDIA: dict[str, tuple[str, tuple[tuple[int, bytes], ...]]] = {
 # The line ``pved bound`` prints (BoundResult.summary), for bound files saved with
 # ``pved bound ... > bound.txt``; the verb writes no JSON of its own.
 _NUM = r"[-+]?(?:inf|nan|\d+(?:\.\d*)?(?:e[-+]?\d+)?)"
-_BOUND_LINE = re.compile(
-    rf"Theorem 1: delta\(q(?P<quantile>{_NUM})\)=(?P<delta>{_NUM}) "
-    rf"\(KL max (?P<kl_max>{_NUM})\), \[a,b\]=\[(?P<a>{_NUM}),(?P<b>{_NUM})\], "
-    rf"m=(?P<m>{_NUM}) -> bound (?P<bound>{_NUM}) vs gap (?P<gap>{_NUM}) "
-    rf"\((?P<held>held|VIOLATED)\); Corollary 1 \(gamma=(?P<gamma>{_NUM})\): "
+_COROLLARY = (
+    rf"Corollary 1 \(gamma=(?P<gamma>{_NUM})\): "
     rf"bound (?P<return_bound>{_NUM}) "
     rf"\(finite n=(?P<horizon>\d+): (?P<return_bound_finite>{_NUM})\) "
     rf"vs return gap (?P<return_gap>{_NUM}) \((?P<return_held>held|VIOLATED)\)"
+)
+_BOUND_LINE = re.compile(
+    rf"Theorem 1: delta=max KL=(?P<delta>{_NUM}) \(q(?P<quantile>{_NUM}) "
+    rf"(?P<delta_quantile>{_NUM}), mean (?P<kl_mean>{_NUM})\), "
+    rf"\[a,b\]=\[(?P<a>{_NUM}),(?P<b>{_NUM})\], m=(?P<m>{_NUM}) -> "
+    rf"bound (?P<bound>{_NUM})(?P<vacuous> \(vacuous: sqrt\(2 delta\) >= 2\))? "
+    rf"vs gap (?P<gap>{_NUM}) \((?P<held>held|VIOLATED)\); with the q{_NUM} KL in place "
+    rf"of delta (?P<bound_quantile>{_NUM}) \(typical pairs, not the theorem's bound\); "
+    + _COROLLARY
+)
+# The line as printed before 2026-12-05, when delta was a quantile of the KL (bound.txt
+# files of the protocols published then): read as such, and shown as such.
+_BOUND_LINE_QUANTILE = re.compile(
+    rf"Theorem 1: delta\(q(?P<quantile>{_NUM})\)=(?P<delta_quantile>{_NUM}) "
+    rf"\(KL max (?P<kl_max>{_NUM})\), \[a,b\]=\[(?P<a>{_NUM}),(?P<b>{_NUM})\], "
+    rf"m=(?P<m>{_NUM}) -> bound (?P<bound_quantile>{_NUM}) vs gap (?P<gap>{_NUM}) "
+    rf"\((?P<held_quantile>held|VIOLATED)\); " + _COROLLARY
 )
 # Sets data-images-loaded / data-images-total on <body> once the page has loaded, so a
 # headless browser (``chromium --dump-dom``) can check that every embedded image decodes.
@@ -370,14 +384,33 @@ def _parse_bound(path: Path, pair: str) -> tuple[dict[str, Any], bool] | None:
         if "pair" in obj and obj["pair"] != pair:
             raise PvedError(f"{path} is for pair {obj['pair']!r}, not {pair!r}")
         return obj, False
-    match = _BOUND_LINE.search(text)
+    match = _BOUND_LINE.search(text) or _BOUND_LINE_QUANTILE.search(text)
     if match is None:
         return None
-    flags, ints = ("held", "return_held"), ("horizon",)
+    flags, ints = ("held", "held_quantile", "return_held"), ("horizon",)
     values: dict[str, Any] = {
         k: v == "held" if k in flags else int(v) if k in ints else float(v)
         for k, v in match.groupdict().items()
+        if k != "vacuous"
     }
+    if "held_quantile" in values:
+        # δ as the theorem has it is the max KL; the old line's bound used a quantile
+        delta = max(values["kl_max"], 0.0)
+        values.update(
+            delta=delta,
+            bound=values["m"] + (values["b"] - values["a"]) / 2 * (2 * delta) ** 0.5,
+        )
+        values["held"] = values["gap"] <= values["bound"]
+        values["vacuous"] = (2 * delta) ** 0.5 >= 2
+        # Corollary 1 is the same right-hand side times a factor of γ and n alone
+        if values["bound_quantile"] > 0:
+            factor = values["bound"] / values["bound_quantile"]
+            for key in ("return_bound", "return_bound_finite"):
+                values[key] *= factor
+            values["return_held"] = values["return_gap"] <= values["return_bound_finite"]
+        del values["held_quantile"]
+    else:
+        values["vacuous"] = match.group("vacuous") is not None
     return values, True
 
 
@@ -546,14 +579,18 @@ def _numbers_section(path: Path, numbers: Mapping[str, Any]) -> str:
 def _bound_section(path: Path, b: Mapping[str, Any], from_text: bool) -> str:
     """Theorem 1 (and Corollary 1 where given) beside the measured gaps."""
     rows = [
-        [f"δ (KL quantile q={_sig(b['quantile'])})", _sig(b["delta"])],
-        ["KL max", _sig(b.get("kl_max"))],
+        ["δ = max KL over the pairs (Theorem 1's hypothesis)", _sig(b["delta"])],
+        [f"KL quantile q={_sig(b['quantile'])} (typical pairs, not δ)",
+         _sig(b.get("delta_quantile"))],
         ["reward range [a, b]", f"[{_sig(b['a'])}, {_sig(b['b'])}]"],
         ["m = max |r_T − r_S|", _sig(b["m"])],
         ["bound m + (b − a)/2 · √(2δ) (Eq. 13)", _sig(b["bound"])],
+        ["vacuous (√(2δ) ≥ 2: no tighter than (b − a) + m)", _fmt(b.get("vacuous"))],
         ["measured gap |mean r_T − mean r_S|", _sig(b["gap"])],
         ["held", _fmt(bool(b["held"]))],
-    ]
+        ["the same with the quantile in place of δ (not a bound)",
+         _sig(b.get("bound_quantile"))],
+    ]  # fmt: skip
     if "return_bound" in b:
         rows += [
             [f"Corollary 1, γ={_sig(b.get('gamma'))}: return bound (Eq. 14)",
