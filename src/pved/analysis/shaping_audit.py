@@ -1,0 +1,253 @@
+"""What Eq. 10's term does at the start of a transfer run (``pved audit-shaping``).
+
+A transfer run starts from a fresh PPO policy (exploration std exp(init_log_std) = 1 on
+[−1, 1] actuators). On that policy's rollouts on the target task, with the pair's model
+and source bank, this module measures, on the same target states:
+
+- **which action is encoded**: D = KL(q_φS(c|s_S,a_S) ‖ q_φT(c|s_T,a_T)) with a_T the
+  policy's mean action (what the pairs and the bank record) and with the sampled, clipped
+  action the env is stepped with;
+- **where PPO's reward clip binds**: PPO scales rewards by the running std of the
+  discounted return and clips them to ±clip. Fed env reward + shaping (the treatment
+  before 2026-12-05), the share of steps the clip binds; fed the env reward alone with
+  the term added after scaling (today's, ``pved.rl.ppo``), the same share, which is then
+  plain PPO's;
+- **the term's size**: β·D against |r_env| per step.
+
+The rollout is a fresh policy's: a reading of where training starts, where the term is
+largest, not of a whole run (a run's ``rollout/clipped_share`` logs the clip over it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pved.envs import make_batched
+from pved.errors import PvedError
+from pved.models.base import SharedSpaceModel
+from pved.rl.networks import ActorCritic, ObsNormalizer, RunningMeanStd
+from pved.rl.policy import Policy
+from pved.rl.ppo import PPOConfig
+from pved.transfer.shaping import LatentShaping, task_params
+from pved.transfer.source_bank import SourceBank
+
+
+def initial_policy(obs_dim: int, act_dim: int, low: Any, high: Any, ppo: PPOConfig) -> Policy:
+    """The policy a transfer run with ``ppo`` starts from (its seed's initial weights)."""
+    net = ActorCritic(obs_dim, act_dim, ppo.hidden_sizes, ppo.activation, ppo.init_log_std)
+    net.init_weights(ppo.seed)
+    norm = ObsNormalizer(obs_dim, ppo.normalize_obs, ppo.obs_clip)
+    return Policy(net, norm, np.asarray(low), np.asarray(high), {"seed": ppo.seed})
+
+
+def rollout_terms(
+    env_id: str,
+    model: SharedSpaceModel,
+    bank: SourceBank,
+    match_keys: tuple[str, ...],
+    ppo: PPOConfig,
+    steps: int,
+    time_scale: float = 1.0,
+) -> dict[str, np.ndarray]:
+    """Roll out the initial policy of ``ppo`` for ``steps`` env steps (over its
+    ``num_envs`` copies; the env is stepped with sampled actions, as in training) and
+    return per step (T, N): ``env_reward``, ``d_mean`` and ``d_taken`` (D of Eq. 10 with
+    the mean and with the sampled action, β = 1) and ``done``."""
+    env = make_batched(env_id, ppo.num_envs)
+    try:
+        n = env.num_envs
+        space = env.single_action_space
+        obs_dim, act_dim = int(env.single_observation_space.shape[0]), int(space.shape[0])
+        policy = initial_policy(obs_dim, act_dim, space.low, space.high, ppo)
+        shaping = LatentShaping(model, bank, 1.0, env.robot_state_indices, time_scale=time_scale)
+        rng = np.random.default_rng(ppo.seed)
+        obs, info = env.reset(seed=ppo.seed)
+        policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
+        episode = bank.match(task_params(info, match_keys, n), rng)
+        t = np.zeros(n, dtype=np.int64)
+        rows = -(-steps // n)
+        out = {k: np.zeros((rows, n)) for k in ("env_reward", "d_mean", "d_taken", "done")}
+        for i in range(rows):
+            mean = policy.act(obs, deterministic=True)
+            taken = policy.act(obs, deterministic=False, rng=rng)
+            out["d_mean"][i] = -shaping.reward(obs, mean, episode, t)
+            out["d_taken"][i] = -shaping.reward(obs, taken, episode, t)
+            obs, reward, terminated, truncated, info = env.step(taken)
+            done = np.asarray(terminated, bool) | np.asarray(truncated, bool)
+            out["env_reward"][i], out["done"][i] = reward, done
+            policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
+            t += 1
+            if done.any():
+                t[done] = 0
+                episode[done] = bank.match(task_params(info, match_keys, n)[done], rng)
+        return out
+    finally:
+        env.close()
+
+
+def clip_shares(
+    env_reward: np.ndarray,
+    shaping: np.ndarray,
+    done: np.ndarray,
+    gamma: float = 0.99,
+    clip: float = 10.0,
+) -> dict[str, float]:
+    """Share of steps whose scaled reward PPO's ±``clip`` binds, per treatment.
+
+    Args:
+        env_reward, shaping, done: (T, N) per step (shaping is −β·D, ≤ 0).
+
+    Returns:
+        ``sum``: the normaliser and the clip on env reward + shaping (before 2026-12-05);
+        ``env``: on the env reward alone, the shaping added after scaling (today's; the
+        same share as plain PPO's on these rewards); ``shaping_over_clip``: share of
+        steps where today's unclipped term alone, shaping/σ_env, exceeds ``clip``;
+        ``env_weight``: the mean of σ_env/σ_sum, the env reward's weight under the old
+        treatment relative to plain PPO's (the term's non-linear effect of β: a larger β
+        inflates σ_sum and shrinks the task reward in what PPO optimises).
+    """
+    if not (env_reward.shape == shaping.shape == done.shape) or env_reward.ndim != 2:
+        raise PvedError("clip_shares needs equal (T, N) arrays")
+    hits = {"sum": 0, "env": 0, "shaping_over_clip": 0}
+    scales: dict[str, list[float]] = {"sum": [], "env": []}
+    for key, stream in (("sum", env_reward + shaping), ("env", env_reward)):
+        rms, acc = RunningMeanStd(()), np.zeros(env_reward.shape[1])
+        for i in range(len(stream)):
+            acc = acc * gamma + stream[i]
+            rms.update(acc)
+            scale = math.sqrt(float(rms.var) + 1e-8)
+            scales[key].append(scale)
+            hits[key] += int(np.count_nonzero(np.abs(stream[i] / scale) > clip))
+            if key == "env":
+                big = np.abs(shaping[i]) / scale > clip
+                hits["shaping_over_clip"] += int(np.count_nonzero(big))
+            acc[done[i].astype(bool)] = 0.0
+    shares = {k: v / env_reward.size for k, v in hits.items()}
+    # the env reward's weight in the optimised reward under the old treatment, relative
+    # to plain PPO's: σ_env/σ_sum (1 today; below 1 the term has shrunk the task reward)
+    shares["env_weight"] = float(np.mean(np.divide(scales["env"], scales["sum"])))
+    return shares
+
+
+def _quantiles(x: np.ndarray) -> dict[str, float]:
+    return {
+        "median": float(np.median(x)),
+        "mean": float(np.mean(x)),
+        "q90": float(np.quantile(x, 0.9)),
+        "max": float(np.max(x)),
+    }
+
+
+def audit(
+    terms: dict[str, np.ndarray], betas: Sequence[float], gamma: float, clip: float
+) -> dict[str, Any]:
+    """The audit's numbers from :func:`rollout_terms`' arrays, for each β in ``betas``
+    (the treatments' clip shares and the term's share of |r_env|), with a_T the mean
+    action (as Eq. 10 is computed now)."""
+    if not betas or any(not (math.isfinite(b) and b > 0) for b in betas):
+        raise PvedError(f"betas must be positive numbers, got {list(betas)}")
+    env_abs = float(np.mean(np.abs(terms["env_reward"])))
+    by_beta = {}
+    for beta in betas:
+        shaping = -beta * terms["d_mean"]
+        by_beta[f"{beta:g}"] = {
+            **clip_shares(terms["env_reward"], shaping, terms["done"], gamma, clip),
+            "term_over_env": float(np.mean(-shaping)) / max(env_abs, 1e-12),
+        }
+    ratio = terms["d_taken"] / np.maximum(terms["d_mean"], 1e-12)
+    return {
+        "steps": int(terms["env_reward"].size),
+        "d_mean_action": _quantiles(terms["d_mean"]),
+        "d_taken_action": _quantiles(terms["d_taken"]),
+        "taken_over_mean_median": float(np.median(ratio)),
+        "env_reward_abs_mean": env_abs,
+        "by_beta": by_beta,
+    }
+
+
+def audit_transfer_start(
+    env_id: str,
+    model: SharedSpaceModel,
+    bank: SourceBank,
+    match_keys: tuple[str, ...],
+    ppo: PPOConfig,
+    *,
+    steps: int,
+    betas: Sequence[float],
+    time_scale: float = 1.0,
+    seed: int = 2000,
+) -> dict[str, Any]:
+    """:func:`audit` of :func:`rollout_terms` for a transfer run of ``ppo`` with ``seed``."""
+    if steps <= 0:
+        raise PvedError(f"steps must be > 0, not {steps}")
+    torch.set_num_threads(1)
+    ppo = dataclasses.replace(ppo, seed=seed)
+    terms = rollout_terms(env_id, model, bank, match_keys, ppo, steps, time_scale)
+    return {
+        "env_id": env_id,
+        "seed": seed,
+        "time_scale": time_scale,
+        **audit(terms, betas, ppo.gamma, ppo.reward_clip),
+    }
+
+
+def audit_pair(
+    pair: str,
+    model_path: Path | str,
+    bank_path: Path | str,
+    *,
+    steps: int = 32_768,
+    betas: Sequence[float] | None = None,
+    seed: int = 2000,
+    out: Path | str | None = None,
+) -> dict[str, Any]:
+    """``pved audit-shaping``: :func:`audit_transfer_start` on ``pair``'s target task with
+    its transfer PPO config, alignment and β grid (default), written to ``out`` (JSON,
+    atomically) when given."""
+    from pved.config import get_preset
+    from pved.envs import env_id
+    from pved.models import load_model
+    from pved.runs import atomic_write_json
+    from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank
+
+    preset = get_preset(pair)
+    betas = tuple(preset.beta_grid_for("pved") if betas is None else betas)
+    if steps <= 0:
+        raise PvedError(f"--steps must be > 0, not {steps}")
+    if not betas or any(not (math.isfinite(b) and b > 0) for b in betas):
+        raise PvedError(f"--betas must be positive numbers, got {list(betas)}")
+    if out is not None and Path(out).exists() and Path(out).is_dir():
+        raise PvedError(f"--out {out} is a directory; give a file path")
+    model, bank = load_model(Path(model_path)), load_bank(Path(bank_path))
+    if model.metadata.get("target_agent") not in (None, preset.target_agent):
+        raise PvedError(f"model {model_path} was trained for another pair")
+    name = env_id(preset.target_agent, preset.target_task)
+    probe = make_batched(name, 1)
+    dt_target = getattr(probe, "dt", None)
+    probe.close()
+    result = {
+        "pair": pair,
+        "model": str(model_path),
+        "bank": str(bank_path),
+        **audit_transfer_start(
+            name,
+            model,
+            bank,
+            preset.bank_match_keys,
+            preset.transfer.ppo,
+            steps=steps,
+            betas=betas,
+            time_scale=bank_time_scale(preset.pairing.align, bank_dt(bank), dt_target),
+            seed=seed,
+        ),
+    }
+    if out is not None:
+        atomic_write_json(Path(out), result)
+    return result

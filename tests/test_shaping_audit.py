@@ -1,0 +1,71 @@
+"""pved.analysis.shaping_audit: the clip shares of the two reward treatments and the
+audit of a fresh transfer policy's rollout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import pved  # noqa: F401  (registers the env ids)
+from pved.analysis.shaping_audit import audit, clip_shares, rollout_terms
+from pved.envs import make_batched
+from pved.errors import PvedError
+from pved.models import PVED, ModelDims, PVEDConfig
+from pved.pretrained import pretrained_policy_path
+from pved.rl.policy import load_policy
+from pved.rl.ppo import PPOConfig
+from pved.transfer.source_bank import build_source_bank
+
+
+def test_clip_shares_of_the_two_treatments() -> None:
+    rng = np.random.default_rng(0)
+    env = rng.normal(0.0, 1.0, (200, 4))
+    done = np.zeros_like(env)
+    done[49::50] = 1.0
+    # no term: both treatments are plain PPO's normaliser, and it never clips unit rewards
+    none = clip_shares(env, np.zeros_like(env), done)
+    assert none["sum"] == none["env"] == none["shaping_over_clip"] == 0.0
+    assert none["env_weight"] == pytest.approx(1.0)
+    # a term 1000x the env reward on a tenth of the steps: fed to the normaliser it
+    # inflates σ, shrinking the env reward's weight 100-fold; on the env reward alone
+    # nothing changes for the env part, and the term passes unclipped
+    shaping = np.where(rng.random(env.shape) < 0.1, -1000.0, 0.0)
+    both = clip_shares(env, shaping, done)
+    assert both["env"] == 0.0 and both["shaping_over_clip"] > 0.05
+    assert both["env_weight"] < 0.02
+    # one spike after a calm stretch: the old treatment clips it
+    spike = np.zeros_like(env)
+    spike[150, 0] = -1e4
+    assert clip_shares(env, spike, done)["sum"] == pytest.approx(1 / env.size)
+    with pytest.raises(PvedError, match="equal"):
+        clip_shares(env, shaping[:10], done)
+
+
+def test_audit_of_a_fresh_policy_on_the_push_target() -> None:
+    source = make_batched("pved/Reacher3Push-v0", 4)
+    bank = build_source_bank(
+        source, load_policy(pretrained_policy_path("Reacher3", "Push")), 8, ("button_start",)
+    )
+    target = make_batched("pved/Reacher4Push-v0", 1)
+    n_t = len(target.robot_state_indices)
+    dims = ModelDims(bank.dim, n_t + 4, len(bank.header["robot_state_indices"]), n_t)
+    torch.manual_seed(0)
+    model = PVED(dims, PVEDConfig())
+    model.fit_standardization(
+        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
+    )
+    ppo = PPOConfig(num_envs=4, seed=3)
+    terms = rollout_terms("pved/Reacher4Push-v0", model, bank, ("button_start",), ppo, 400)
+    assert terms["d_mean"].shape == (100, 4)
+    assert np.all(terms["d_mean"] >= 0) and np.all(terms["d_taken"] >= 0)
+    # with std 1 on [-1, 1] actuators the taken action differs from the mean
+    assert not np.allclose(terms["d_mean"], terms["d_taken"])
+    assert terms["done"][99].all()  # Push episodes are 100 steps
+    result = audit(terms, (0.1, 1.0), 0.99, 10.0)
+    assert set(result["by_beta"]) == {"0.1", "1"}
+    assert result["by_beta"]["1"]["term_over_env"] == pytest.approx(
+        10 * result["by_beta"]["0.1"]["term_over_env"]
+    )
+    with pytest.raises(PvedError, match="betas must be positive"):
+        audit(terms, (-0.1,), 0.99, 10.0)
