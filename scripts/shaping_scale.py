@@ -67,22 +67,13 @@ import torch
 from scipy.stats import spearmanr
 
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
+from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.experiments.protocol import transfer_run_name
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
 from pved.pairing.dataset import load_dataset
 from pved.runs import atomic_write_json
-
-QUANTILES = (0.5, 0.95)
-
-
-def distance_stats(distance: np.ndarray) -> dict[str, float]:
-    """Mean, median and 95% quantile of per-row distances (R,)."""
-    return {
-        "mean": float(distance.mean()),
-        **{f"q{round(q * 100)}": float(np.quantile(distance, q)) for q in QUANTILES},
-    }
 
 
 def shaping_scale(model_path: Path, dataset_path: Path, rows: int, seed: int) -> dict[str, Any]:
@@ -98,24 +89,6 @@ def shaping_scale(model_path: Path, dataset_path: Path, rows: int, seed: int) ->
         **target_part_swapped(model, x_s, x_t, dataset.state_dims[1], rows, seed),
         **other_episode_same_step(model, x_s, x_t, dataset.episode, dataset.t_target, rows, seed),
     }
-
-
-@torch.no_grad()
-def matched_and_shuffled(
-    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, rows: int, seed: int
-) -> dict[str, dict[str, float]]:
-    """D of Eq. 10 on ``rows`` seeded samples of the paired rows x_s (M, D_S), x_t (M, D_T),
-    matched and with the target side shuffled: ``{"matched": stats, "shuffled": stats}``
-    (:func:`distance_stats`)."""
-    rng = np.random.default_rng(seed)
-    pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
-    shuffled = rng.permutation(pick)
-    source = torch.as_tensor(x_s[pick], dtype=torch.float32)
-    out = {}
-    for name, target_rows in (("matched", pick), ("shuffled", shuffled)):
-        target = torch.as_tensor(x_t[target_rows], dtype=torch.float32)
-        out[name] = distance_stats(model.shaping(source, target).double().numpy())
-    return out
 
 
 @torch.no_grad()

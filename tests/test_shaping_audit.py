@@ -3,6 +3,9 @@ audit of a fresh transfer policy's rollout."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -69,3 +72,19 @@ def test_audit_of_a_fresh_policy_on_the_push_target() -> None:
     )
     with pytest.raises(PvedError, match="betas must be positive"):
         audit(terms, (-0.1,), 0.99, 10.0)
+
+
+def test_likelihood_reading_fits_both_variances_on_the_same_pairs(tmp_path: Path) -> None:
+    from pved.analysis.shaping_audit import likelihood_reading
+    from pved.experiments.stages import collect_pairs
+
+    data = collect_pairs("reacher", episodes=8, runs_root=tmp_path, progress=False)
+    out = tmp_path / "likelihood.json"
+    got = likelihood_reading("reacher", data, epochs=1, rows=200, runs_root=tmp_path, out=out)
+    assert json.loads(out.read_text()) == json.loads(json.dumps(got))
+    for variance in ("learned", "unit"):
+        assert set(got[variance]) == {"matched", "shuffled", "shared_std_mean"}
+        assert got[variance]["matched"]["q50"] >= 0.0
+        assert (tmp_path / "reacher" / "likelihood" / variance / "seed0" / "result.json").exists()
+    # the two fits differ only in the decoder variance, so their D differ
+    assert got["learned"]["matched"] != got["unit"]["matched"]

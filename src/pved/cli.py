@@ -318,6 +318,22 @@ def _cmd_audit_shaping(args: argparse.Namespace) -> None:
     )
 
 
+def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
+    from pved.analysis.shaping_audit import likelihood_reading
+    from pved.experiments.stages import run_file
+
+    _print_json(
+        likelihood_reading(
+            args.pair,
+            run_file(args.dataset, "pairs.npz", "dataset"),
+            seed=args.seed,
+            epochs=args.epochs,
+            runs_root=args.runs,
+            out=args.out,
+        )
+    )
+
+
 def _cmd_video(args: argparse.Namespace) -> None:
     from pved.analysis.video import render_rollout
     from pved.errors import PvedError
@@ -581,6 +597,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=2000, help="the transfer run's PPO seed")
     p.add_argument("--out", type=Path, help="also write the JSON here")
     p.set_defaults(func=_cmd_audit_shaping)
+
+    p = sub.add_parser(
+        "audit-likelihood",
+        help="Eq. 10's scale under a learned and a unit decoder variance",
+        description="Fits the pair's PVED with the learned per-dimension decoder variance "
+        "and with a unit one on the same pairs, and reports D on matched and shuffled "
+        "training pairs for each.",
+    )
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="root of the run directories")
+    p.add_argument("--pair", default="reacher")
+    p.add_argument("--dataset", type=Path, required=True, help="pairs.npz or its run directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, help="default: the pair's")
+    p.add_argument("--out", type=Path, help="also write the JSON here")
+    p.set_defaults(func=_cmd_audit_likelihood)
 
     p = sub.add_parser("video", help="render a rollout of a policy to GIF (or MP4)")
     p.add_argument("--policy", type=Path, required=True, help="policy.pt or its run directory")

@@ -38,6 +38,34 @@ from pved.rl.ppo import PPOConfig
 from pved.transfer.shaping import LatentShaping, task_params
 from pved.transfer.source_bank import SourceBank
 
+QUANTILES = (0.5, 0.95)
+
+
+def distance_stats(distance: np.ndarray) -> dict[str, float]:
+    """Mean, median and 95% quantile of per-row distances (R,)."""
+    return {
+        "mean": float(distance.mean()),
+        **{f"q{round(q * 100)}": float(np.quantile(distance, q)) for q in QUANTILES},
+    }
+
+
+@torch.no_grad()
+def matched_and_shuffled(
+    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, rows: int, seed: int
+) -> dict[str, dict[str, float]]:
+    """D of Eq. 10 on ``rows`` seeded samples of the paired rows x_s (M, D_S), x_t (M, D_T),
+    matched and with the target side shuffled: ``{"matched": stats, "shuffled": stats}``
+    (:func:`distance_stats`)."""
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(x_s), size=min(rows, len(x_s)), replace=False)
+    shuffled = rng.permutation(pick)
+    source = torch.as_tensor(x_s[pick], dtype=torch.float32)
+    out = {}
+    for name, target_rows in (("matched", pick), ("shuffled", shuffled)):
+        target = torch.as_tensor(x_t[target_rows], dtype=torch.float32)
+        out[name] = distance_stats(model.shaping(source, target).double().numpy())
+    return out
+
 
 def initial_policy(obs_dim: int, act_dim: int, low: Any, high: Any, ppo: PPOConfig) -> Policy:
     """The policy a transfer run with ``ppo`` starts from (its seed's initial weights)."""
@@ -248,6 +276,61 @@ def audit_pair(
             seed=seed,
         ),
     }
+    if out is not None:
+        atomic_write_json(Path(out), result)
+    return result
+
+
+def likelihood_reading(
+    pair: str,
+    dataset_path: Path | str,
+    *,
+    seed: int = 0,
+    epochs: int | None = None,
+    rows: int = 4000,
+    runs_root: Path | str,
+    out: Path | str | None = None,
+) -> dict[str, Any]:
+    """``pved audit-likelihood``: the decoder likelihood's effect on Eq. 10's scale.
+
+    Fits the pair's PVED twice on the same pairs and seed, with the learned per-dimension
+    decoder variance (pved's reading, floored at std ``min_decoder_std``) and with a unit
+    variance, and reports D on matched and on shuffled training pairs
+    (:func:`matched_and_shuffled`) for each, with the shared posteriors' mean std. The
+    models are kept under ``runs_root/<pair>/likelihood/<variance>/seed<seed>``."""
+    from pved.config import get_preset
+    from pved.models import PVEDConfig
+    from pved.models.train import train_model as fit_model
+    from pved.pairing.dataset import load_dataset
+    from pved.runs import Run, atomic_write_json, run_path
+
+    preset = get_preset(pair)
+    data = load_dataset(Path(dataset_path))
+    data.check_agents(preset.source_agent, preset.target_agent)
+    x_s, x_t = data.model_inputs()
+    result: dict[str, Any] = {"pair": pair, "dataset": str(dataset_path), "seed": seed}
+    for variance in ("learned", "unit"):
+        base = preset.model_config("pved", seed=seed, epochs=epochs)
+        if not isinstance(base, PVEDConfig):
+            raise PvedError(f"{pair}'s pved config is not a PVEDConfig")
+        cfg = dataclasses.replace(base, decoder_variance=variance)
+        run = Run(
+            run_path(Path(runs_root), pair, "likelihood", variance, seed),
+            {"stage": "likelihood", "pair": pair, "model_config": cfg},
+            tensorboard=False,
+        )
+        run.start()
+        model = fit_model("pved", x_s, x_t, cfg, run, state_dims=data.state_dims)
+        model.eval()
+        pick = np.random.default_rng(seed).choice(len(x_s), min(rows, len(x_s)), replace=False)
+        with torch.no_grad():
+            q_s = model.shared_source(torch.as_tensor(x_s[pick], dtype=torch.float32))
+        std = None if q_s.logvar is None else float(torch.exp(0.5 * q_s.logvar).mean())
+        result[variance] = {
+            **matched_and_shuffled(model, x_s, x_t, rows, seed),
+            "shared_std_mean": std,
+        }
+        run.finish({"shared_std_mean": std})
     if out is not None:
         atomic_write_json(Path(out), result)
     return result
