@@ -112,39 +112,44 @@ def test_rollout_bootstraps_truncation_and_not_termination() -> None:
     np.testing.assert_allclose(adv[ends, 0], td_end, rtol=1e-5)
 
 
-def test_reward_normaliser_sees_the_env_reward_alone_and_scales_the_shaping_linearly() -> None:
-    # A shaped env reports its term in info["reward_shaping"]: the running return std σ
-    # and the ±clip act on the env reward exactly as in plain PPO, and the term is added
-    # as shaping/σ, never clipped; so the optimised reward is (r_env − β·D)/σ.
-    shaping_per_step = -50.0  # far past the clip, as Eq. 10 can be early in training
-
+def test_a_shaped_reward_is_scaled_but_never_clipped() -> None:
+    # A shaped env reports its term in info["reward_shaping"]: PPO divides its reward by
+    # the running std σ of the return of what it optimises, r_env − β·D, and does not
+    # clip it, so the optimised reward is exactly (r_env − β·D)/σ (linear in β); plain
+    # PPO's reward is clipped as before.
     class Shaped(PointTarget1D):
-        def __init__(self, n: int, shaped: bool) -> None:
+        def __init__(self, n: int, shaping: np.ndarray | None) -> None:
             super().__init__(n, max_episode_steps=7)
-            self.shaped = shaped
+            self.shaping, self.t = shaping, 0
+            self.env_rewards: list[np.ndarray] = []
 
         def step(self, actions: np.ndarray) -> Any:
             obs, reward, term, trunc, info = super().step(actions)
-            if self.shaped:
-                added = np.full(3, shaping_per_step)
+            self.env_rewards.append(np.asarray(reward, dtype=np.float64).copy())
+            if self.shaping is not None:
+                added = self.shaping[self.t]
                 info = {**info, "env_reward": reward, "reward_shaping": added}
-                reward = reward + shaping_per_step
+                reward = reward + added
+            self.t += 1
             return obs, reward, term, trunc, info
 
+    # a term that is small but for one spike of −1000 at step 15 of copy 1
+    spike = np.full((20, 3), -0.01)
+    spike[15, 1] = -1000.0
     cfg = PPOConfig(num_envs=3, steps_per_env=20, minibatch_size=60, hidden_sizes=(4,),
                     reward_clip=5.0, checkpoint_every=0)  # fmt: skip
-    plain, shaped = _Trainer(Shaped(3, False), cfg), _Trainer(Shaped(3, True), cfg)
+    plain, shaped = _Trainer(Shaped(3, None), cfg), _Trainer(Shaped(3, spike), cfg)
     for tr in (plain, shaped):
         tr.reset_env(0)
         tr.rollout()
-    assert shaped.ret_rms.var == plain.ret_rms.var  # the term does not move σ
-    sigma = math.sqrt(float(plain.ret_rms.var) + 1e-8)
-    # per step the shaped reward is the plain one plus shaping/σ (σ of that step; the
-    # last step's σ is the final one)
-    np.testing.assert_allclose(shaped.buf_rew[-1] - plain.buf_rew[-1], shaping_per_step / sigma)
     assert np.all(np.abs(plain.buf_rew) <= cfg.reward_clip)
-    assert np.all(shaped.buf_rew < -cfg.reward_clip)  # the term itself is not clipped
-    assert 0.0 <= shaped.clipped_share <= 1.0 and shaped.clipped_share == plain.clipped_share
+    # the spike passes unclipped, scaled by the running σ of the shaped returns
+    assert shaped.buf_rew[15, 1] < -cfg.reward_clip
+    # the last step's reward is (r_env + term)/σ with σ the final running std
+    sigma = math.sqrt(float(shaped.ret_rms.var) + 1e-8)
+    env_last = shaped.env.env_rewards[-1]  # type: ignore[attr-defined]
+    np.testing.assert_allclose(shaped.buf_rew[-1], (env_last + spike[-1]) / sigma)
+    assert shaped.clipped_share > 0.0  # counted, not clipped
 
 
 def test_ppo_gives_a_shaped_env_the_clipped_mean_action_before_each_step() -> None:

@@ -7,11 +7,12 @@ and source bank, this module measures, on the same target states:
 - **which action is encoded**: D = KL(q_φS(c|s_S,a_S) ‖ q_φT(c|s_T,a_T)) with a_T the
   policy's mean action (what the pairs and the bank record) and with the sampled, clipped
   action the env is stepped with;
-- **where PPO's reward clip binds**: PPO scales rewards by the running std of the
-  discounted return and clips them to ±clip. Fed env reward + shaping (the treatment
-  before 2026-12-05), the share of steps the clip binds; fed the env reward alone with
-  the term added after scaling (today's, ``pved.rl.ppo``), the same share, which is then
-  plain PPO's;
+- **where PPO's reward clip would bind**: PPO divides rewards by the running std σ of the
+  discounted return and clips them to ±clip. Fed env reward + shaping, the share of steps
+  beyond the clip (clipped before 2026-12-05; scaled and left unclipped today,
+  ``pved.rl.ppo``); fed the env reward alone (plain PPO), the same share; and, for the
+  alternative of a σ of the env reward alone with the term added after scaling, the share
+  of steps where the term alone exceeds the clip in those units;
 - **the term's size**: β·D against |r_env| per step.
 
 The rollout is a fresh policy's: a reading of where training starts, where the term is
@@ -133,13 +134,14 @@ def clip_shares(
         env_reward, shaping, done: (T, N) per step (shaping is −β·D, ≤ 0).
 
     Returns:
-        ``sum``: the normaliser and the clip on env reward + shaping (before 2026-12-05);
-        ``env``: on the env reward alone, the shaping added after scaling (today's; the
-        same share as plain PPO's on these rewards); ``shaping_over_clip``: share of
-        steps where today's unclipped term alone, shaping/σ_env, exceeds ``clip``;
-        ``env_weight``: the mean of σ_env/σ_sum, the env reward's weight under the old
-        treatment relative to plain PPO's (the term's non-linear effect of β: a larger β
-        inflates σ_sum and shrinks the task reward in what PPO optimises).
+        ``sum``: steps whose (r_env + shaping)/σ_sum lies beyond ±``clip`` (what the
+        clip cut before 2026-12-05; today such a shaped reward is left unclipped);
+        ``env``: the same for r_env/σ_env, plain PPO's reward on these steps;
+        ``shaping_over_clip``: steps where shaping/σ_env alone exceeds ``clip`` (the
+        size the term would take in PPO's units were σ taken of the env reward alone);
+        ``env_weight``: the mean of σ_env/σ_sum, how much smaller every reward is in
+        PPO's units than plain PPO's scaling would make it (the ratio of env reward to
+        term is the same under both scalings).
     """
     if not (env_reward.shape == shaping.shape == done.shape) or env_reward.ndim != 2:
         raise PvedError("clip_shares needs equal (T, N) arrays")

@@ -714,13 +714,13 @@ def transfer_spec(
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
         # How Eq. 10 is computed (docs/decisions.md): the bank read on the pairs' time
-        # base, the policy's mean action encoded, and the reward normaliser on the env
-        # reward alone. Runs made before these existed computed otherwise, so their
-        # config hashes differ and they are not taken for these.
+        # base, the policy's mean action encoded, and the shaped reward scaled by its
+        # return's std but never clipped. Runs made before these existed computed
+        # otherwise, so their config hashes differ and they are not taken for these.
         config.update(
             bank_time=preset.pairing.align,
             shaping_action=shaping_action,
-            reward_normalizer="env-only",
+            reward_scaling="scaled-unclipped",
         )
         # both only when set, so the runs made before they existed keep their config hashes
         if shaping_start:
