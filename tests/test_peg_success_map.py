@@ -162,8 +162,11 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
     holes = np.array([(x, y) for y in result["hole_y"] for x in result["hole_x"]])
     model, bank = load_model(model_dir / "model.pt"), load_bank(bank_dir / "bank.npz")
     inner = make_batched("pved/Fetch4Peg-v0", len(holes))
+    # the policy acts deterministically, so the action taken is its mean action
     env = ShapedBatchedEnv(
-        inner, LatentShaping(model, bank, 1.0, inner.robot_state_indices), ("hole",)
+        inner,
+        LatentShaping(model, bank, 1.0, inner.robot_state_indices, action="taken"),
+        ("hole",),
     )
     policy = load_policy(policy_path)
     obs, info = env.reset(seed=7, options={"hole": holes})
