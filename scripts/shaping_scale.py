@@ -250,10 +250,10 @@ def spearman_by_seed(
 ) -> tuple[float | None, list[float] | None]:
     """Spearman's rho of (n,) and (n,) with its 95% percentile bootstrap interval, the runs
     of one PPO seed drawn together (as :func:`pved.analysis.curves.bootstrap_difference`
-    draws clusters). A resample whose rho is undefined (its runs all scored alike) counts
-    as 0, no association: skipping it would keep only the resamples that drew the few
-    scoring seeds, and narrow the interval beyond the evidence. Both are None when the
-    point estimate is undefined."""
+    draws a group's seeds; the source policies are not drawn here). A resample whose rho
+    is undefined (its runs all scored alike) counts as 0, no association: skipping it
+    would keep only the resamples that drew the few scoring seeds, and narrow the
+    interval beyond the evidence. Both are None when the point estimate is undefined."""
     rho = _spearman(x, y)
     if rho is None:
         return None, None

@@ -16,11 +16,17 @@ from pved.analysis.claims import (
     HOLDS,
     NOT_HOLD,
     UNDECIDED,
+    claims_markdown,
     combine,
     drop,
     early_score,
     eval_curve,
+    family_wise,
+    holm,
+    holm_adjusted,
     judge_claims,
+    not_beat_verdict,
+    similar_verdict,
     write_claims,
 )
 from pved.analysis.curves import bootstrap_difference
@@ -41,10 +47,14 @@ def make_protocol(
     budget: str = "quick",
     metric: str = "success_rate",
     moved: bool = False,
+    sources: int = 0,
 ) -> Path:
     """A protocol directory: summary.json and, per run, a metrics.jsonl with the run's
     evaluation curve at STEPS (its final score is the curve's last value). ``moved``:
-    the summary's result paths point elsewhere (the directory was moved after the run)."""
+    the summary's result paths point elsewhere (the directory was moved after the run).
+    ``sources`` > 0: the shaped methods' runs are named as a protocol names them, run i
+    with source policy i % sources and seed 20000 (1 + i // sources) (plain PPO and the
+    oracle keep a seed a run)."""
     root.mkdir(parents=True)
     summary: dict[str, Any] = {"budget": budget, "pairs": {}}
     for pair, methods in pairs.items():
@@ -52,7 +62,11 @@ def make_protocol(
         for method, curves in methods.items():
             runs = []
             for i, curve in enumerate(curves):
+                seed = i
                 key = f"{pair}/transfer/{method}/seed{i}"
+                if sources and method not in ("ppo", "oracle"):
+                    seed = 20000 * (1 + i // sources)
+                    key = f"{pair}/transfer/{method}-beta0.01-init0-src{i % sources}/seed{seed}"
                 run_dir = root / "runs" / key
                 run_dir.mkdir(parents=True)
                 lines = [json.dumps({"step": s, "loss/loss": 1.0}) for s in STEPS]
@@ -62,7 +76,7 @@ def make_protocol(
                 ]
                 (run_dir / "metrics.jsonl").write_text("\n".join(lines) + "\n")
                 result = (Path("/nonexistent") / key if moved else run_dir) / "result.json"
-                runs.append({"key": key, "seed": i, metric: curve[-1], "result": str(result)})
+                runs.append({"key": key, "seed": seed, metric: curve[-1], "result": str(result)})
             entry["methods"][method] = {
                 "runs_planned": len(curves),
                 "runs_finished": len(curves),
@@ -112,7 +126,7 @@ def test_runs_that_share_a_seed_are_drawn_together() -> None:
     a, seeds = np.repeat(per_seed, 3), np.repeat([20000, 40000, 60000, 80000, 100000], 3)
     b = np.zeros(15)
     runs = bootstrap_difference(a, b, reps=4000, seed=1)
-    clustered = bootstrap_difference(a, b, reps=4000, seed=1, clusters_a=list(seeds))
+    clustered = bootstrap_difference(a, b, reps=4000, seed=1, seeds_a=list(seeds))
     five = bootstrap_difference(per_seed, b, reps=4000, seed=1)
     assert clustered["diff"] == runs["diff"] == five["diff"]
     width = {k: d["diff_ci"][1] - d["diff_ci"][0] for k, d in
@@ -120,10 +134,10 @@ def test_runs_that_share_a_seed_are_drawn_together() -> None:
     assert width["clustered"] > 1.3 * width["runs"]  # sqrt(3) in the limit
     assert abs(width["clustered"] - width["five"]) < 0.1
     # one label per run is the run bootstrap, to the last digit
-    singletons = bootstrap_difference(a, b, reps=500, seed=2, clusters_a=list(range(15)))
+    singletons = bootstrap_difference(a, b, reps=500, seed=2, seeds_a=list(range(15)))
     assert singletons == bootstrap_difference(a, b, reps=500, seed=2)
-    with pytest.raises(PvedError, match="cluster labels"):
-        bootstrap_difference(a, b, clusters_a=[1, 2])
+    with pytest.raises(PvedError, match="seed labels"):
+        bootstrap_difference(a, b, seeds_a=[1, 2])
 
 
 def test_combination_rule() -> None:
@@ -150,11 +164,12 @@ def one_pair(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 "pved-shared-only": flat(0.2, n=1),  # one run: needs >= 2
             },
             "humanoid-ant": {
+                "oracle": flat(1.0, spread=0.0),  # the margin: 0.1
                 "pved": flat(0.8),
-                "pved-vae": flat(0.8),  # similar to pved
+                "pved-vae": flat(0.8),  # similar to pved: the CI is inside ±0.1
                 "ppo": flat(0.4),
-                "pved-state-only": flat(0.4),  # does not beat ppo
-                "pved-det-shared": flat(0.6),  # beats ppo: "does not beat" does not hold
+                "pved-state-only": flat(0.4),  # does not beat ppo: the CI is below +0.1
+                "pved-det-shared": flat(0.6),  # beats ppo by more than 0.1: does not hold
             },
         },
     )
@@ -197,7 +212,8 @@ def test_numbers_of_a_beats_part(one_pair: dict[str, Any]) -> None:
 
 def test_separated_groups_are_not_similar(tmp_path: Path) -> None:
     root = make_protocol(
-        tmp_path / "p", {"humanoid-ant": {"pved": flat(0.8), "pved-vae": flat(0.3)}}
+        tmp_path / "p",
+        {"humanoid-ant": {"pved": flat(0.8), "pved-vae": flat(0.3), "oracle": flat(1.0)}},
     )
     assert (
         part(judge_claims([root]), 7, "pved similar to pved-vae", "humanoid-ant")["verdict"]
@@ -209,7 +225,13 @@ def test_equal_constant_groups_of_different_sizes_are_not_separated(tmp_path: Pa
     # mean([0.1] * 3) and mean([0.1] * 5) differ by rounding (1e-17): no difference
     root = make_protocol(
         tmp_path / "p",
-        {"humanoid-ant": {"pved": flat(0.1, 0.0, n=3), "pved-vae": flat(0.1, 0.0, n=5)}},
+        {
+            "humanoid-ant": {
+                "pved": flat(0.1, 0.0, n=3),
+                "pved-vae": flat(0.1, 0.0, n=5),
+                "oracle": flat(1.0),
+            }
+        },
     )
     result = judge_claims([root])
     assert part(result, 7, "pved similar to pved-vae", "humanoid-ant")["verdict"] == HOLDS
@@ -354,3 +376,158 @@ def test_cli_writes_claims_and_rejects_bad_dirs(
         assert code == 2 and stdout == ""
         assert err.startswith("pved: error: ") and words in err, err
         assert err.count("\n") == 1
+
+
+# ---- source policies, equivalence margins and the family-wise view
+
+
+def by_source(finals: list[float], seeds: int = 5) -> list[list[float]]:
+    """Runs of a shaped method (make_protocol's ``sources``=len(finals)): run i ends at
+    finals[i % len(finals)] plus a small per-seed offset."""
+    k = len(finals)
+    return [
+        list(np.linspace(0.0, finals[i % k] + 0.001 * (i // k), len(STEPS)))
+        for i in range(k * seeds)
+    ]
+
+
+def test_source_policies_are_resampled(tmp_path: Path) -> None:
+    """PVED's three source policies end at 0.0, 0.1 and 1.0, each alike over its five
+    seeds; PPO at 0.2. By seed alone PVED's mean (0.37) beats PPO surely; with the source
+    policies drawn too, 30% of the resamples hold only the two weak ones: undecided."""
+    pairs = {"reacher": {"pved": by_source([0.0, 0.1, 1.0]), "ppo": flat(0.2, 0.01, n=15)}}
+    result = judge_claims([make_protocol(tmp_path / "p", pairs, sources=3)])
+    beats = part(result, 1, "pved beats ppo", "reacher")
+    assert beats["verdict"] == UNDECIDED, beats
+    pved, ppo = beats["groups"]
+    assert (pved["sources"], pved["seeds"], ppo["sources"], ppo["seeds"]) == (3, 5, 0, 15)
+    lo, hi = beats["difference"]["ci"]
+    assert lo < 0 < hi and beats["p"] > 0.5
+    # the same runs with keys that name no source policy: drawn by seed alone, as the
+    # intervals were before, the interval is narrow around 0.17 and the part holds
+    root = make_protocol(tmp_path / "q", pairs, sources=3)
+    summary = json.loads((root / "summary.json").read_text())
+    for i, run in enumerate(summary["pairs"]["reacher"]["methods"]["pved"]["runs"]):
+        run["key"] = f"reacher/transfer/pved/run{i}"
+    (root / "summary.json").write_text(json.dumps(summary))
+    by_seed = part(judge_claims([root]), 1, "pved beats ppo", "reacher")
+    assert by_seed["verdict"] == HOLDS and by_seed["groups"][0]["sources"] == 0
+    assert by_seed["difference"]["ci"][0] > 0.15
+
+
+def test_margin_rules() -> None:
+    """ "Similar": the whole CI inside (−m, +m); "does not beat": the CI below +m."""
+    m = 0.1
+    assert similar_verdict([-0.05, 0.08], m) == HOLDS
+    assert similar_verdict([-0.3, 0.3], m) == UNDECIDED  # contains 0, wider than the margin
+    assert similar_verdict([0.05, 0.3], m) == UNDECIDED
+    assert similar_verdict([0.1, 0.3], m) == NOT_HOLD
+    assert similar_verdict([-0.4, -0.1], m) == NOT_HOLD
+    assert not_beat_verdict([-0.5, 0.09], m) == HOLDS
+    assert not_beat_verdict([-0.3, 0.3], m) == UNDECIDED
+    assert not_beat_verdict([0.1, 0.3], m) == NOT_HOLD
+
+
+def test_a_wide_interval_that_contains_0_is_not_similarity(tmp_path: Path) -> None:
+    """Runs spread from 0.1 to 0.9 around equal means: the CI of the difference holds 0
+    but is far wider than the margin (10% of the oracle's 1.0): neither "similar" nor "does
+    not beat" is shown (both held before, the CI containing 0). Tight groups are."""
+    wide = flat(0.5, spread=0.4)
+    pairs = {
+        "humanoid-ant": {
+            "oracle": flat(1.0, spread=0.0),
+            "pved": wide,
+            "pved-vae": flat(0.5, spread=0.4),
+            "ppo": flat(0.5, spread=0.4),
+            "pved-state-only": wide,
+            "pved-det-shared": flat(0.5, spread=0.01),
+            "gupta2017": flat(0.5, spread=0.01, n=6),
+        }
+    }
+    result = judge_claims([make_protocol(tmp_path / "p", pairs)])
+    similar = part(result, 7, "pved similar to pved-vae", "humanoid-ant")
+    lo, hi = similar["difference"]["ci"]
+    assert lo < -0.1 and 0.1 < hi
+    assert similar["verdict"] == UNDECIDED and "±m" in similar["reason"]
+    assert similar["margin"] == pytest.approx(0.1)
+    state_only = part(result, 3, "pved-state-only does not beat ppo", "humanoid-ant")
+    assert state_only["verdict"] == UNDECIDED and "+m" in state_only["reason"]
+    # one wide group is enough: tight gupta2017 runs against the wide ppo ones
+    tight = part(result, 3, "gupta2017 does not beat ppo", "humanoid-ant")
+    assert tight["verdict"] == UNDECIDED
+    # tight groups: the CI inside the margin
+    det = judge_claims(
+        [
+            make_protocol(
+                tmp_path / "q",
+                {
+                    "humanoid-ant": {
+                        "oracle": flat(1.0),
+                        "ppo": flat(0.5, 0.01),
+                        "pved-det-shared": flat(0.52, 0.01),
+                        "pved": flat(0.5, 0.01),
+                        "pved-vae": flat(0.45, 0.01),
+                    }
+                },
+            )
+        ]
+    )
+    assert part(det, 3, "pved-det-shared does not beat ppo", "humanoid-ant")["verdict"] == HOLDS
+    assert part(det, 7, "pved similar to pved-vae", "humanoid-ant")["verdict"] == HOLDS
+    md = claims_markdown(det)
+    row = next(r for r in md.splitlines() if r.startswith("| pved similar to pved-vae |"))
+    assert "margin ±0.100 (10% of oracle's mean final 1.000)" in row
+    # no oracle: no scale for the margin
+    alone = judge_claims(
+        [make_protocol(tmp_path / "r", {"humanoid-ant": {"pved": wide, "pved-vae": wide}})]
+    )
+    no_scale = part(alone, 7, "pved similar to pved-vae", "humanoid-ant")
+    assert no_scale["verdict"] == UNDECIDED
+    assert no_scale["reason"] == "no runs of oracle on humanoid-ant: no scale for the margin"
+
+
+def test_holm_on_a_worked_example() -> None:
+    """m = 4 at α = 0.05: sorted 0.005 <= 0.05/4, 0.01 <= 0.05/3, 0.03 > 0.05/2: stop."""
+    p = [0.01, 0.04, 0.03, 0.005]
+    assert holm(p, 0.05) == [True, False, False, True]
+    # adjusted: 4 x 0.005, 3 x 0.01, 2 x 0.03, max(0.06, 1 x 0.04)
+    assert holm_adjusted(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert holm([0.04], 0.05) == [True] and holm([], 0.05) == []
+    # Bonferroni would reject only the first; Holm steps down to the second as well
+    assert holm([0.001, 0.02, 0.5], 0.05) == [True, True, False]
+
+
+def test_family_wise_verdicts() -> None:
+    """Holm over the distinct tests of a judgement: a verdict whose p does not survive
+    becomes undecided in the family-wise column, a claim combines its parts'."""
+
+    def p(name: str, pair: str, verdict: str, pvalue: float | None) -> dict[str, Any]:
+        return {"part": name, "pair": pair, "verdict": verdict, "p": pvalue}
+
+    claims = [
+        {"parts": [p("a", "x", HOLDS, 0.001), p("b", "x", HOLDS, 0.02)]},
+        {"parts": [p("a", "x", HOLDS, 0.001), p("c", "x", NOT_HOLD, 0.01)]},
+        {"parts": [p("d", "x", UNDECIDED, 0.6), p("e", "x", UNDECIDED, None)]},
+    ]
+    family = family_wise(claims, alpha=0.05)
+    # four distinct tests (a twice is one): 0.001 x 4, 0.01 x 3, 0.02 x 2, 0.6
+    assert family == {"alpha": 0.05, "tests": 4, "parts": 6, "parts_tested": 5}
+    parts = [part for claim in claims for part in claim["parts"]]
+    assert [q["p_holm"] for q in parts] == pytest.approx([0.004, 0.04, 0.004, 0.03, 0.6, None])
+    assert [q["family_verdict"] for q in parts] == [HOLDS, HOLDS, HOLDS, NOT_HOLD] + [UNDECIDED] * 2
+    # one more test of p = 0.02 makes the family five: 0.02 x 3 = 0.06 > 0.05
+    claims[2]["parts"].append(p("f", "x", HOLDS, 0.02))
+    family_wise(claims, alpha=0.05)
+    assert claims[0]["parts"][1]["family_verdict"] == UNDECIDED
+    assert [c["family_verdict"] for c in claims] == [UNDECIDED, NOT_HOLD, UNDECIDED]
+
+
+def test_claims_md_says_what_is_computed(one_pair: dict[str, Any]) -> None:
+    md = claims_markdown(one_pair)
+    assert "over seeds" not in md and "contains 0 (holds)" not in md
+    assert "two-level bootstrap" in md and "source policies" in md
+    family = one_pair["family"]
+    assert f"over the {family['tests']} distinct tests of this judgement" in md
+    assert "| claim | verdict per part | family-wise (Holm) |" in md
+    assert all("family_verdict" in c for c in one_pair["claims"])
+    assert "contains 0" not in one_pair["definitions"]["similar"]

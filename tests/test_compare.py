@@ -25,11 +25,19 @@ def make_run(
     total_steps: int = 1000,
     stage: str = "transfer",
     steps: list[int] | None = None,
+    bank: str | None = None,
 ) -> Path:
-    """A finished run directory as `pved transfer` leaves it (the files compare reads)."""
+    """A finished run directory as `pved transfer` leaves it (the files compare reads);
+    ``bank``: the source bank a shaped method's run recorded."""
     run_dir = root / f"seed{seed}"
     run_dir.mkdir(parents=True)
-    config = {"stage": stage, "pair": pair, "ppo": {"seed": seed, "total_steps": total_steps}}
+    config: dict[str, object] = {
+        "stage": stage,
+        "pair": pair,
+        "ppo": {"seed": seed, "total_steps": total_steps},
+    }
+    if bank is not None:
+        config["bank"] = bank
     (run_dir / "config.json").write_text(json.dumps({"config": config}))
     (run_dir / "result.json").write_text(json.dumps({"final/success_rate": final}))
     lines = [
@@ -81,6 +89,41 @@ def test_runs_of_one_seed_are_drawn_together(tmp_path: Path) -> None:
     ci_apart = compare_runs(apart, b)["groups"]["A"]["final"]["mean_ci"]
     assert ci_clustered == [0.0, 1.0]
     assert 0.0 < ci_apart[0] and ci_apart[1] < 1.0
+
+
+def test_source_banks_are_resampled_with_the_seeds(tmp_path: Path) -> None:
+    """Three source banks, each over two seeds; the runs of bank 2 succeed, the others
+    fail. By seed alone every resample's mean is 1/3; with the banks drawn too it is k/3
+    for k draws of bank 2 among three, 0 in 8/27 and 1 in 1/27 of the resamples: the
+    interval is [0, 1]. Where both groups ran with the same banks one draw serves both,
+    and a difference that is 0.5 under every bank stays 0.5."""
+    flat = [0.0] * 5
+    banks = ["b0", "b1", "b2"]
+    a = [
+        make_run(tmp_path / f"a{k}", seed, flat, float(bank == "b2"), bank=bank)
+        for k, bank in enumerate(banks)
+        for seed in (1, 2)
+    ]
+    b = [make_run(tmp_path / "b", s, flat, 0.0) for s in (1, 2, 3)]
+    result = compare_runs(a, b)
+    assert result["groups"]["A"]["final"]["mean_ci"] == pytest.approx([0.0, 1.0])
+    assert result["groups"]["A"]["sources"] == ["b0", "b0", "b1", "b1", "b2", "b2"]
+    assert result["groups"]["B"]["sources"] is None
+    lo, hi = result["diff"]["final"]["diff_ci"]
+    assert lo <= 0 < hi and result["diff"]["final"]["p"] > 0.5
+    assert "two-level bootstrap over source banks" in format_comparison(result)
+    # both groups with the same banks: one draw
+    c = [
+        make_run(tmp_path / f"c{k}", seed, flat, float(bank == "b2") + 0.5, bank=bank)
+        for k, bank in enumerate(banks)
+        for seed in (1, 2)
+    ]
+    shared = compare_runs(c, a)
+    assert shared["diff"]["final"]["diff_ci"] == pytest.approx([0.5, 0.5])
+    assert "one draw of the source banks for both groups" in format_comparison(shared)
+    # a group of shaped and plain runs is not one method
+    with pytest.raises(PvedError, match="mixes runs with a source bank"):
+        compare_runs([*a, make_run(tmp_path / "p", 9, flat, 0.0)], b)
 
 
 def test_a_folder_is_searched_for_transfer_runs(tmp_path: Path) -> None:

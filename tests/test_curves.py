@@ -13,6 +13,7 @@ from scipy import stats
 from pved.analysis.curves import (
     Curve,
     Panel,
+    bootstrap_difference,
     bootstrap_summary,
     load_curve,
     panels_figure,
@@ -235,3 +236,96 @@ def test_curve_from_metrics_and_plot(tmp_path: Path) -> None:
     np.testing.assert_allclose(curve.mean, [0.1, 0.6, 1.1])
     out = plot_curves([curve], tmp_path / "c.png", "success", "t")
     assert out.stat().st_size > 1000
+
+
+# ---- the difference of two groups: a two-level bootstrap over sources and seeds
+
+SEEDS = [20000, 40000, 60000, 80000, 100000]
+
+
+def crossed(by_source: list[float], by_seed: list[float]) -> tuple[np.ndarray, list, list]:
+    """Runs of a shaped method, every seed with every source: (scores, seeds, sources),
+    the score of (source k, seed s) by_source[k] + by_seed[s]."""
+    cells = [(k, s) for k in range(len(by_source)) for s in range(len(by_seed))]
+    scores = np.array([by_source[k] + by_seed[s] for k, s in cells])
+    return scores, [SEEDS[s] for _, s in cells], [k for k, _ in cells]
+
+
+def test_sources_that_differ_widen_the_interval_beyond_the_seeds() -> None:
+    """Three source policies end at 0.0, 0.1 and 1.0 and the seeds change nothing: the
+    seeds alone see a sure gain of 1/6 over a constant 0.2, but a resample that draws
+    only the two weak sources ((2/3)^3 = 30% of them) ends below 0.2."""
+    a, seeds, sources = crossed([0.0, 0.1, 1.0], [0.0] * 5)
+    b, b_seeds = np.full(15, 0.2), list(range(15))
+    seed_only = bootstrap_difference(a, b, seeds_a=seeds, seeds_b=b_seeds)
+    both = bootstrap_difference(a, b, seeds_a=seeds, seeds_b=b_seeds, sources_a=sources)
+    assert seed_only["diff"] == pytest.approx(both["diff"]) == pytest.approx(1.1 / 3 - 0.2)
+    assert seed_only["diff_ci"] == pytest.approx([1.1 / 3 - 0.2] * 2)  # excludes 0
+    assert seed_only["tests"][0]["p"] == pytest.approx(2 / 2001)
+    lo, hi = both["diff_ci"]
+    assert lo < 0 < hi and width(both["diff_ci"]) > 0.5
+    # the k/3 means of three draws: 0.0 to 1.0, the middle 95% from the weakest to the best
+    assert both["a"]["mean_ci"] == pytest.approx([0.0, 1.0])
+    assert (both["a"]["sources"], both["a"]["seeds"], both["b"]["sources"]) == (3, 5, 0)
+    assert both["tests"][0]["p"] > 0.5  # 30% of the resamples at or below 0, p = 2 x 0.3
+
+
+def test_equal_sources_leave_the_seed_interval() -> None:
+    """Sources that all score alike add nothing: the two-level interval is the seed
+    bootstrap's (up to the resampling's noise)."""
+    a, seeds, sources = crossed([0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 1.0, 0.0])
+    b = np.zeros(15)
+    seed_only = bootstrap_difference(a, b, reps=4000, seeds_a=seeds, seeds_b=list(range(15)))
+    both = bootstrap_difference(
+        a, b, reps=4000, seeds_a=seeds, seeds_b=list(range(15)), sources_a=sources
+    )
+    assert abs(width(both["diff_ci"]) - width(seed_only["diff_ci"])) < 0.05
+    assert width(both["diff_ci"]) > 0.5
+
+
+def test_shared_sources_are_drawn_once_for_both_groups() -> None:
+    """Two shaped methods with the same source effect (1.0 for source 2, 0 otherwise)
+    and A 0.5 above B everywhere: one source draw for both leaves the difference at 0.5
+    in every resample; drawn apart (different source labels), it spreads by ±1."""
+    a, seeds, sources = crossed([0.5, 0.5, 1.5], [0.0] * 5)
+    b = a - 0.5
+    shared = bootstrap_difference(
+        a, b, seeds_a=seeds, seeds_b=seeds, sources_a=sources, sources_b=sources
+    )
+    assert shared["diff_ci"] == pytest.approx([0.5, 0.5])
+    apart = bootstrap_difference(
+        a, b, seeds_a=seeds, seeds_b=seeds, sources_a=sources, sources_b=[s + 3 for s in sources]
+    )
+    assert apart["diff_ci"][0] < 0 < 1 < apart["diff_ci"][1]
+
+
+def test_bootstrap_p_values_of_a_bar() -> None:
+    """P(d* <= c) and P(d* >= c) as (1 + count) / (1 + reps), p = 2 min of them."""
+    # a = {0, 1}, b = 0: the resampled mean of a is 0, 0.5 or 1 with chances 1/4, 1/2, 1/4
+    d = bootstrap_difference(np.array([0.0, 1.0]), np.zeros(2), reps=20000, bars=(0.0, 1.0))
+    at0, at1 = d["tests"]
+    assert (at0["bar"], at1["bar"]) == (0.0, 1.0)
+    assert at0["le"] == pytest.approx(0.25, abs=0.01) and at0["ge"] == 1.0
+    assert at0["p"] == pytest.approx(0.5, abs=0.02)
+    assert at1["ge"] == pytest.approx(0.25, abs=0.01) and at1["p"] == pytest.approx(0.5, abs=0.02)
+    # every resample above the bar: the smallest p there is, 2 / (reps + 1)
+    far = bootstrap_difference(np.array([1.0, 1.1]), np.array([0.0, 0.1]), reps=999)
+    assert far["tests"][0] == {"bar": 0.0, "le": 1 / 1000, "ge": 1.0, "p": 2 / 1000}
+    # draws within tol of the bar count on both sides: no evidence either way
+    tie = bootstrap_difference(np.full(3, 0.1), np.full(5, 0.1), bars=(0.0,), tol=1e-9)
+    assert tie["tests"][0]["p"] == 1.0
+    # a group's own mean against a bar
+    g = bootstrap_difference(np.array([0.0, 1.0]), np.zeros(2), reps=20000, group_bars=(0.5,))
+    assert g["a"]["tests"][0]["le"] == pytest.approx(0.75, abs=0.01)
+    assert "tests" not in d["a"]
+
+
+def test_two_level_bootstrap_bad_labels() -> None:
+    a, seeds, sources = crossed([0.0, 1.0], [0.0, 0.0])
+    with pytest.raises(PvedError, match="need seed labels"):
+        bootstrap_difference(a, a, sources_a=sources)
+    with pytest.raises(PvedError, match="source labels for 4 runs"):
+        bootstrap_difference(a, a, seeds_a=seeds, sources_a=sources[:3])
+    # a missing run (an empty cell) is fine: the other cells carry the group
+    d = bootstrap_difference(a[:3], a, seeds_a=seeds[:3], sources_a=sources[:3])
+    assert np.isfinite(d["diff_ci"]).all() and d["a"]["runs"] == 3

@@ -745,8 +745,9 @@ def build_parser() -> argparse.ArgumentParser:
         "claims",
         help="verdicts on the paper's seven claims (IV.B) from protocol outputs",
         description="Judge each of the paper's claims about Fig. 3, part by part and pair "
-        "by pair, as holds / does not hold / undecided with bootstrap CIs over the runs; "
-        "writes claims.json and claims.md. Give each pair's protocol directory once.",
+        "by pair, as holds / does not hold / undecided with bootstrap CIs over source "
+        "policies and seeds, and family-wise (Holm); writes claims.json and claims.md. "
+        "Give each pair's protocol directory once.",
     )
     p.add_argument("dirs", nargs="+", type=Path, help="protocol output directories")
     p.add_argument("--out", type=Path, help="where claims.json/md go (default: the first DIR)")
@@ -757,9 +758,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="two groups of transfer runs: final, early and drop differences with 95%% CIs",
         description="Compare the finished transfer runs under --a with those under --b, "
         "as `pved claims` compares two methods: the difference A - B of the final score, "
-        "the early score and the drop, each with its 95% bootstrap CI (the runs of one PPO "
-        "seed drawn together), and the steps each group's mean curve takes to reach B's "
-        "final mean. A DIR is a run directory or a folder searched for them.",
+        "the early score and the drop, each with its 95% bootstrap CI over source banks "
+        "and PPO seeds (every run of a drawn bank and seed taken) and p-value, and the "
+        "steps each group's mean curve takes to reach B's final mean. A DIR is a run "
+        "directory or a folder searched for them.",
     )
     p.add_argument("--a", nargs="+", type=Path, required=True, metavar="DIR")
     p.add_argument("--b", nargs="+", type=Path, required=True, metavar="DIR")

@@ -7,10 +7,14 @@ Per run, as in :mod:`pved.analysis.claims`: the final score (the pair's metric i
 ``result.json``, the run's final evaluation), the early score (the mean of its evaluation
 points at steps <= 25% of its last) and the drop (its best evaluation point minus its
 last). For each, the difference of the two groups' means, A − B, with its 95% percentile
-bootstrap interval (:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples,
-seed 0), the runs of one PPO seed drawn together. And the steps each group's mean curve
-takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`), the paper's
-"steps to reach the baseline's final performance" with B as the baseline.
+bootstrap interval and the bootstrap p-value of 0, from the bootstrap ``pved claims`` uses
+(:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples, seed 0): two levels,
+the source policies (a run's source bank, ``bank`` in its config; one draw for both
+groups where they ran with the same banks) and the PPO seeds (each group its own draw),
+every run of a drawn (source, seed) cell taken; a group without banks (plain PPO, the
+oracle) draws its seeds only, the runs of one seed together. And the steps each group's
+mean curve takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`),
+the paper's "steps to reach the baseline's final performance" with B as the baseline.
 
 Only files are read: each run's ``config.json``, ``result.json`` and ``metrics.jsonl``.
 """
@@ -30,7 +34,7 @@ from pved.config import get_preset
 from pved.errors import PvedError
 from pved.runs import read_json
 
-REPS = 2000
+REPS = 20000
 """Bootstrap resamples per interval (as ``pved claims``)."""
 SCORES = ("final", "early", "drop")
 
@@ -82,7 +86,8 @@ def _stage(run_dir: Path) -> object:
 
 
 def _load_run(run_dir: Path) -> dict[str, Any]:
-    """A finished transfer run's pair, length, PPO seed and final results."""
+    """A finished transfer run's pair, length, PPO seed, source bank (None: a method
+    without one, plain PPO or the oracle) and final results."""
     config = _read_json(run_dir / "config.json")["config"]
     ppo = config.get("ppo")
     if not isinstance(ppo, dict) or not isinstance(config.get("pair"), str):
@@ -92,12 +97,15 @@ def _load_run(run_dir: Path) -> dict[str, Any]:
         "pair": config["pair"],
         "steps": ppo.get("total_steps"),
         "seed": ppo.get("seed"),
+        "source": config.get("bank"),
         "result": _read_json(run_dir / "result.json"),
     }
 
 
 def _group(name: str, runs: list[dict[str, Any]], metric: str) -> dict[str, Any]:
-    """One group's per-run scores, PPO seeds (the bootstrap's clusters) and mean curve."""
+    """One group's per-run scores, PPO seeds and source banks (the bootstrap's two levels;
+    sources None for a group without banks) and mean curve. PvedError for a group that
+    mixes runs with and without a source bank."""
     final, early, drops, series = [], [], [], []
     for run in runs:
         value = run["result"].get(f"final/{metric}")
@@ -118,6 +126,14 @@ def _group(name: str, runs: list[dict[str, Any]], metric: str) -> dict[str, Any]
                 "compare runs of one evaluation schedule"
             )
     seeds = [r["seed"] if isinstance(r["seed"], int) else f"run{i}" for i, r in enumerate(runs)]
+    banks = [r["source"] for r in runs]
+    if any(bank is None for bank in banks) and any(bank is not None for bank in banks):
+        shaped = next(r for r in runs if r["source"] is not None)["dir"]
+        plain = next(r for r in runs if r["source"] is None)["dir"]
+        raise PvedError(
+            f"group {name} mixes runs with a source bank ({shaped}) and without one "
+            f"({plain}): compare runs of one method in a group"
+        )
     return {
         "name": name,
         "runs": runs,
@@ -126,9 +142,24 @@ def _group(name: str, runs: list[dict[str, Any]], metric: str) -> dict[str, Any]
             "early": np.asarray(early),
             "drop": np.asarray(drops),
         },
-        "clusters": seeds,
+        "seeds": seeds,
+        "sources": banks if banks and banks[0] is not None else None,
         "curve": Curve(name, steps0, np.stack([v for _, v in series]), list(range(len(runs)))),
     }
+
+
+def _resampling(ga: dict[str, Any], gb: dict[str, Any]) -> str:
+    """What the intervals resample, for the printed table."""
+    with_sources = [g["name"] for g in (ga, gb) if g["sources"] is not None]
+    if not with_sources:
+        return "bootstrap over PPO seeds, the runs of one seed drawn together"
+    if len(with_sources) == 1:
+        how = f"{with_sources[0]}'s; the other group has none"
+    elif set(ga["sources"]) == set(gb["sources"]):
+        how = "one draw of the source banks for both groups"
+    else:
+        how = "each group's own banks, drawn apart"
+    return f"two-level bootstrap over source banks ({how}) and PPO seeds"
 
 
 def compare_runs(
@@ -137,10 +168,12 @@ def compare_runs(
     """Compare the finished transfer runs under ``a`` with those under ``b`` (paths as
     :func:`find_transfer_runs` takes them). Every run must be of one pair and one length.
 
-    Returns ``{"pair", "metric", "steps", "groups": {name: {"runs", "dirs", "seeds",
+    Returns ``{"pair", "metric", "steps", "resampling": what the intervals resample,
+    "groups": {name: {"runs", "dirs", "seeds", "sources" (each run's bank, or None),
     "final": {"mean", "mean_ci"}, "early_mean", "drop_mean", "steps_to_<B>_final"}},
     "<B>_final": B's final mean curve point, "<B>_improved", "diff": {score: {"diff",
-    "diff_ci"}}}``, differences A − B. Raises PvedError (one line) for bad input."""
+    "diff_ci", "p"}}}``, differences A − B (``p``: the bootstrap p-value of 0). Raises
+    PvedError (one line) for bad input."""
     name_a, name_b = names
     if name_a == name_b:
         raise PvedError(f"the two groups need different names, got {name_a!r} twice")
@@ -175,6 +208,7 @@ def compare_runs(
         "pair": first["pair"],
         "metric": metric,
         "steps": first["steps"],
+        "resampling": _resampling(ga, gb),
         "groups": {},
         f"{name_b}_final": b_final,
         f"{name_b}_improved": b_improved,
@@ -186,10 +220,12 @@ def compare_runs(
             gb["scores"][score],
             reps=REPS,
             seed=seed,
-            clusters_a=ga["clusters"],
-            clusters_b=gb["clusters"],
+            seeds_a=ga["seeds"],
+            seeds_b=gb["seeds"],
+            sources_a=ga["sources"],
+            sources_b=gb["sources"],
         )
-        out["diff"][score] = {"diff": d["diff"], "diff_ci": d["diff_ci"]}
+        out["diff"][score] = {"diff": d["diff"], "diff_ci": d["diff_ci"], "p": d["tests"][0]["p"]}
         for g, key in ((ga, "a"), (gb, "b")):
             entry = out["groups"].setdefault(
                 g["name"],
@@ -197,6 +233,7 @@ def compare_runs(
                     "runs": len(g["runs"]),
                     "dirs": [str(r["dir"]) for r in g["runs"]],
                     "seeds": [r["seed"] for r in g["runs"]],
+                    "sources": g["sources"],
                 },
             )
             if score == "final":
@@ -225,7 +262,7 @@ def format_comparison(result: dict[str, Any]) -> str:
 
     lines = [
         f"{result['pair']}, {result['metric']} after {result['steps']:,} steps "
-        "(95% bootstrap CIs, the runs of one PPO seed drawn together)",
+        f"(95% CIs: {result['resampling']}; p: bootstrap p-value of no difference)",
         "",
         f"| group | runs | final mean [95% CI] | early mean | drop mean | steps to "
         f"{name_b}'s final ({result[f'{name_b}_final']:.3f}) |",
@@ -241,5 +278,8 @@ def format_comparison(result: dict[str, Any]) -> str:
     lines.append("")
     for score in SCORES:
         d = result["diff"][score]
-        lines.append(f"{score}: {names[0]} − {name_b} = {d['diff']:+.3f} {interval(d['diff_ci'])}")
+        lines.append(
+            f"{score}: {names[0]} − {name_b} = {d['diff']:+.3f} {interval(d['diff_ci'])}, "
+            f"p = {d['p']:.3g}"
+        )
     return "\n".join(lines)

@@ -1,7 +1,9 @@
-"""Learning curves over environment steps and the project's one kind of confidence interval:
-a 95% percentile bootstrap over runs (seeds), computed with rliable
-(``rliable.library.get_interval_estimates``), as Agarwal et al. (2021) recommend for few-run
-RL results."""
+"""Learning curves over environment steps and the project's confidence intervals, all 95%
+percentile bootstraps: over runs (seeds) for one method's curve and summary, computed with
+rliable (``rliable.library.get_interval_estimates``), as Agarwal et al. (2021) recommend for
+few-run RL results; and, for the difference between two methods (``pved claims``, ``pved
+compare``), a two-level bootstrap over source policies and PPO seeds
+(:func:`bootstrap_difference`)."""
 
 from __future__ import annotations
 
@@ -108,22 +110,43 @@ def bootstrap_summary(
     }
 
 
-def _cluster_sums(
-    values: np.ndarray, labels: Sequence[Hashable] | None
+def _index(labels: Sequence[Hashable], order: Sequence[Hashable] | None = None) -> np.ndarray:
+    """Each label's position in ``order`` (default: the labels in order of first
+    appearance, so that singleton labels draw exactly as runs do)."""
+    if order is None:
+        order = list(dict.fromkeys(labels))
+    where = {label: i for i, label in enumerate(order)}
+    return np.asarray([where[label] for label in labels], dtype=np.int64)
+
+
+def _cells(
+    values: np.ndarray, seeds: np.ndarray, sources: np.ndarray, shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-cluster sums and run counts, (k,) each, clusters in order of first appearance
-    (so that singleton clusters draw exactly as runs do)."""
-    if labels is None:
-        return values, np.ones_like(values)
-    if len(labels) != values.size:
-        raise PvedError(f"{len(labels)} cluster labels for {values.size} runs")
-    index: dict[Hashable, int] = {}
-    for label in labels:
-        index.setdefault(label, len(index))
-    ids = np.asarray([index[label] for label in labels])
-    sums = np.bincount(ids, weights=values, minlength=len(index))
-    counts = np.bincount(ids, minlength=len(index)).astype(np.float64)
+    """Per-(source, seed) cell sums and run counts, each ``shape`` (sources, seeds)."""
+    flat = sources * shape[1] + seeds
+    size = shape[0] * shape[1]
+    sums = np.bincount(flat, weights=values, minlength=size).reshape(shape)
+    counts = np.bincount(flat, minlength=size).astype(np.float64).reshape(shape)
     return sums, counts
+
+
+def _multiplicities(rng: np.random.Generator, k: int, reps: int) -> np.ndarray:
+    """(reps, k): how often each of k units is drawn in a resample of k draws with
+    replacement."""
+    picks = rng.integers(0, k, size=(reps, k))
+    out = np.zeros((reps, k))
+    np.add.at(out, (np.arange(reps)[:, None], picks), 1.0)
+    return out
+
+
+def _tails(draws: np.ndarray, bar: float, tol: float) -> dict[str, float]:
+    """The bootstrap p-values of ``bar`` from resampled statistics ``draws``: ``le`` =
+    (1 + #{d* <= bar}) / (1 + reps), ``ge`` the same for d* >= bar (draws within ``tol``
+    of the bar count on both sides), and the two-sided ``p`` = min(1, 2 min(le, ge))."""
+    n = draws.size
+    le = (1.0 + float(np.count_nonzero(draws <= bar + tol))) / (1.0 + n)
+    ge = (1.0 + float(np.count_nonzero(draws >= bar - tol))) / (1.0 + n)
+    return {"bar": float(bar), "le": le, "ge": ge, "p": min(1.0, 2.0 * min(le, ge))}
 
 
 def bootstrap_difference(
@@ -132,59 +155,134 @@ def bootstrap_difference(
     reps: int = 2000,
     seed: int = 0,
     *,
-    clusters_a: Sequence[Hashable] | None = None,
-    clusters_b: Sequence[Hashable] | None = None,
+    seeds_a: Sequence[Hashable] | None = None,
+    seeds_b: Sequence[Hashable] | None = None,
+    sources_a: Sequence[Hashable] | None = None,
+    sources_b: Sequence[Hashable] | None = None,
+    bars: Sequence[float] = (0.0,),
+    group_bars: Sequence[float] = (),
+    tol: float = 0.0,
 ) -> dict[str, Any]:
-    """The difference of means between two independent groups of runs, mean(a) − mean(b),
-    with its 95% percentile bootstrap CI; and each group's mean with its own CI from the
-    same resamples.
+    """The difference of means between two groups of runs, mean(a) − mean(b), with its 95%
+    percentile bootstrap CI, bootstrap p-values against ``bars``, and each group's mean
+    with its own CI from the same resamples: a two-level (hierarchical) bootstrap over the
+    source policies and the PPO seeds the runs were made with.
 
     ``a`` (n_a,) and ``b`` (n_b,) are per-run scores (e.g. final success rates of two
-    methods on one pair; n_a and n_b may differ). Each of the ``reps`` resamples draws n_a
-    runs of ``a`` and, independently, n_b runs of ``b`` with replacement (the groups are
-    never paired); the interval holds the central 95% of the resampled differences
-    (percentile method, as rliable's). Reproducible for a given ``seed``; numpy's global RNG
-    is not touched.
+    methods on one pair). ``seeds_a`` / ``seeds_b``: each run's PPO seed; ``sources_a`` /
+    ``sources_b``: each run's source policy, or None for a group without one (plain PPO,
+    the oracle). The design is crossed: a shaped method runs every evaluation seed once
+    with every source policy, so each run is one (source, seed) cell. Each of the
+    ``reps`` resamples of a group draws its k source policies with replacement and,
+    independently, its m seeds with replacement, and takes every run of every drawn
+    (source, seed) cell, as often as the cell was drawn (source draws times seed draws);
+    the resample's statistic is the mean over those runs. A group without sources draws
+    its seeds only: the runs of one seed are one unit (a cluster bootstrap), and unique
+    seed labels, or None, give the plain run bootstrap. Drawing only seeds would make the
+    interval conditional on the few source policies at hand, which differ a lot (on
+    humanoid-ant PVED's three sources end at 5.5, 6.4 and 26.9 m); drawing runs apart
+    would treat a seed's runs as independent, which they are not.
 
-    ``clusters_a`` / ``clusters_b`` (one label per run, e.g. its PPO seed): runs with one
-    label are drawn together, as one unit (a cluster bootstrap: k labels, k draws of a
-    label, the resample's mean over all the runs drawn). Runs that share a seed are not
-    independent, and drawing them apart would narrow the interval beyond the evidence.
-    Unique labels, or None, give the run bootstrap above exactly.
+    What is paired. Sources: when both groups have sources with the same labels (two
+    shaped methods of one protocol run with the same source policies), one source draw
+    serves both, so a source that helps or hurts both methods alike moves both means
+    together and does not widen the interval of their difference; otherwise each group
+    draws its own. Seeds: never paired; each group draws its seeds independently (as
+    ``pved claims`` always has). Plain PPO and the oracle run seeds s, s+1, s+2 that no
+    shaped run shares, and two shaped methods with the same seed share only its initial
+    network before their rewards differ; with seed effects that correlate positively,
+    independent draws make the interval wider, never narrower, than a paired draw.
 
-    Returns ``{"diff": d, "diff_ci": [lo, hi], "a": {"runs": n_a, "mean": m, "mean_ci":
-    [lo, hi]}, "b": {...}}``. A group of one run contributes its value without spread.
-    Raises PvedError for an empty, non-1-D or non-finite group, or ``reps`` < 1.
+    The interval holds the central 95% of the resampled differences (the percentile
+    method, as rliable's). The p-value of a bar c is ``p`` = min(1, 2 min(P(d* <= c),
+    P(d* >= c))) with P estimated as (1 + count) / (1 + reps), the usual +1 correction
+    (so never below 2 / (reps + 1), 0.0010 at 2000 resamples); d* within ``tol`` of c
+    counts on both sides. ``p`` < 0.05 matches, up to the percentile's interpolation, an
+    interval that excludes c. ``le`` and ``ge`` are the one-sided parts (for equivalence
+    tests). ``group_bars``: the same for each group's own mean.
 
-    Why numpy rather than rliable here: rliable does support this (a list of two arrays
-    in ``get_interval_estimates`` selects its ``StratifiedIndependentBootstrap``), but it
-    runs the resamples in a Python loop, ~0.2 s per call, and judging the paper's claims
-    needs dozens of such intervals; this draws all resamples at once
-    (``np.random.default_rng(seed)``), with the same percentile rule."""
+    Returns ``{"diff": d, "diff_ci": [lo, hi], "tests": [{"bar", "le", "ge", "p"}...]
+    (one per bar), "a": {"runs": n_a, "seeds": m, "sources": k (0: none), "mean": x,
+    "mean_ci": [lo, hi], "tests": [...] (group_bars; only if given)}, "b": {...}}``. A
+    group of one run contributes its value without spread. A resample that draws only
+    empty cells (possible only where runs are missing) has no mean and is left out.
+    Reproducible for a given ``seed``; numpy's global RNG is not touched. Raises PvedError
+    for an empty, non-1-D or non-finite group, labels that do not match the runs, sources
+    without seeds, or ``reps`` < 1.
+
+    Why numpy rather than rliable: rliable has no two-level bootstrap, and its
+    ``StratifiedIndependentBootstrap`` runs its resamples in a Python loop (~0.2 s a call,
+    and judging the paper's claims needs dozens of intervals); this draws all resamples at
+    once (``np.random.default_rng(seed)``), with the same percentile rule."""
     if reps < 1:
         raise PvedError(f"bootstrap needs reps >= 1, got {reps}")
-    groups = {"a": _finite(a, "bootstrap_difference"), "b": _finite(b, "bootstrap_difference")}
+    values = {"a": _finite(a, "bootstrap_difference"), "b": _finite(b, "bootstrap_difference")}
+    seeds = {"a": seeds_a, "b": seeds_b}
+    sources = {"a": sources_a, "b": sources_b}
+    for name, x in values.items():
+        if x.ndim != 1:
+            raise PvedError(f"bootstrap_difference wants 1-D run scores, got {x.shape}")
+        for what, labels in (("seed", seeds[name]), ("source", sources[name])):
+            if labels is not None and len(labels) != x.size:
+                raise PvedError(f"{len(labels)} {what} labels for {x.size} runs")
+        if sources[name] is not None and seeds[name] is None:
+            raise PvedError("runs with source labels need seed labels (sources x seeds)")
+    # each group's source order; one order (and one draw) for both when they share them
+    order: dict[str, list[Hashable]] = {
+        name: list(dict.fromkeys(labels)) for name, labels in sources.items() if labels is not None
+    }
+    shared = len(order) == 2 and set(order["a"]) == set(order["b"])
+    if shared:
+        order["b"] = order["a"]
     rng = np.random.default_rng(seed)
-    tail = 100.0 * (1.0 - CI_SIZE) / 2.0
+    # source draws first (none for groups without sources, so that seed-only groups draw
+    # exactly as the seed bootstrap always has), then each group's seeds
+    weights: dict[str, np.ndarray] = {}
+    for name in ("a", "b"):
+        if name not in order:
+            weights[name] = np.ones((reps, 1))  # one source, always drawn once
+        elif shared and name == "b":
+            weights["b"] = weights["a"]
+        else:
+            weights[name] = _multiplicities(rng, len(order[name]), reps)
     result: dict[str, Any] = {}
+    tail = 100.0 * (1.0 - CI_SIZE) / 2.0
     resampled: dict[str, np.ndarray] = {}
-    for name, values in groups.items():
-        if values.ndim != 1:
-            raise PvedError(f"bootstrap_difference wants 1-D run scores, got {values.shape}")
-        labels = clusters_a if name == "a" else clusters_b
-        sums, counts = _cluster_sums(values, labels)
-        # (reps, k) indices: each row is one resample of the group's k clusters.
-        picks = rng.integers(0, sums.size, size=(reps, sums.size))
-        resampled[name] = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)  # (reps,)
-        lo, hi = np.percentile(resampled[name], [tail, 100.0 - tail])
+    for name, x in values.items():
+        seed_labels: Sequence[Hashable] = seeds[name] or list(range(x.size))
+        seed_order = list(dict.fromkeys(seed_labels))
+        src_labels = sources[name]
+        src_index = (
+            _index(src_labels, order[name])
+            if src_labels is not None
+            else np.zeros(x.size, dtype=np.int64)
+        )
+        shape = (weights[name].shape[1], len(seed_order))
+        sums, counts = _cells(x, _index(seed_labels, seed_order), src_index, shape)
+        # per resample, each seed's column summed over the drawn sources: (reps, m)
+        col_sums, col_counts = weights[name] @ sums, weights[name] @ counts
+        picks = rng.integers(0, shape[1], size=(reps, shape[1]))
+        total = np.take_along_axis(col_sums, picks, axis=1).sum(axis=1)
+        n = np.take_along_axis(col_counts, picks, axis=1).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            resampled[name] = total / n  # (reps,); NaN: only empty cells drawn
+        lo, hi = np.nanpercentile(resampled[name], [tail, 100.0 - tail])
         result[name] = {
-            "runs": int(values.size),
-            "mean": float(values.mean()),
+            "runs": int(x.size),
+            "seeds": len(seed_order),
+            "sources": len(order.get(name, [])),
+            "mean": float(x.mean()),
             "mean_ci": [float(lo), float(hi)],
         }
-    lo, hi = np.percentile(resampled["a"] - resampled["b"], [tail, 100.0 - tail])
-    result["diff"] = float(groups["a"].mean() - groups["b"].mean())
+        if group_bars:
+            draws = resampled[name][np.isfinite(resampled[name])]
+            result[name]["tests"] = [_tails(draws, c, tol) for c in group_bars]
+    diffs = resampled["a"] - resampled["b"]
+    diffs = diffs[np.isfinite(diffs)]
+    lo, hi = np.percentile(diffs, [tail, 100.0 - tail])
+    result["diff"] = float(values["a"].mean() - values["b"].mean())
     result["diff_ci"] = [float(lo), float(hi)]
+    result["tests"] = [_tails(diffs, c, tol) for c in bars]
     return result
 
 
