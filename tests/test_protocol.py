@@ -1242,3 +1242,34 @@ def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> Non
     # seeds that each score alike and end alike: an exact, stable association
     rho, ci = spearman_by_seed(np.arange(15.0), -np.arange(15.0), seeds)
     assert rho == pytest.approx(-1.0) and ci == pytest.approx([-1.0, -1.0])
+
+
+def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -> None:
+    # Restored or copied runs cannot be checked by their config hash (their model and bank
+    # are gone), so a shaped run is taken only where its config says Eq. 10 was computed
+    # as it is now (bank time base, mean action, unclipped scaled reward): else it is made again.
+    from pved.experiments.protocol import _finished_results
+    from pved.experiments.runner import read_job_result
+    from pved.experiments.stages import eq10_config
+
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", tmp_path)
+    jobs = plan.expand({})
+    shaped = next(j for j in jobs if j.key.startswith("reacher/transfer/pved-"))
+    ppo = next(j for j in jobs if "/transfer/ppo/" in j.key)
+    assert shaped.required_config == eq10_config("reacher") and not ppo.required_config
+    old_config = {"stage": "transfer", "method": "pved", "beta": 0.1}
+    for job, config in ((shaped, old_config), (ppo, {"stage": "transfer", "method": "ppo"})):
+        assert job.run_dir is not None
+        job.run_dir.mkdir(parents=True)
+        (job.run_dir / "config.json").write_text(json.dumps({"config": config}))
+        (job.run_dir / "result.json").write_text(json.dumps(_fake(0.5)))
+    assert read_job_result(shaped.run_dir, shaped.required_config) is None
+    assert read_job_result(ppo.run_dir, ppo.required_config) == _fake(0.5)
+    finished = _finished_results(plan)
+    assert ppo.key in finished and shaped.key not in finished
+    # the same run with today's entries counts
+    assert shaped.run_dir is not None
+    new_config = {**old_config, **eq10_config("reacher")}
+    (shaped.run_dir / "config.json").write_text(json.dumps({"config": new_config}))
+    assert read_job_result(shaped.run_dir, shaped.required_config) == _fake(0.5)
+    assert shaped.key in _finished_results(plan)

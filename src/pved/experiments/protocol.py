@@ -50,6 +50,7 @@ from pved.experiments.runner import (
     Job,
     RunnerReport,
     check_reachable,
+    read_job_result,
     resolve_backend,
     run_jobs,
 )
@@ -61,6 +62,7 @@ from pved.experiments.stages import (
     collect_pairs,
     default_dataset_path,
     default_model_path,
+    eq10_config,
     train_model,
     train_policy,
     transfer,
@@ -305,6 +307,8 @@ class ProtocolPlan:
         # the selection waits on the tuning runs, and everything on the stages before
         # them (priority 0); evaluation runs fill the workers left over
         tuning = method not in REFERENCE_METHODS and seed in b.tuning_seeds
+        # a shaped run made before Eq. 10's fixes (restored or copied) is made again
+        required = {} if method in REFERENCE_METHODS else eq10_config(pair)
         return Job(
             key=f"{pair}/transfer/{name}/seed{seed}",
             fn=transfer,
@@ -314,6 +318,7 @@ class ProtocolPlan:
             steps=steps,
             run_dir=run_path(self.runs, pair, "transfer", name, seed),
             tags={"source_policy": source, "init": init, "beta": beta},
+            required_config=required,
         )
 
     def _bank_path(self, pair: str, source: int) -> Path:
@@ -732,9 +737,9 @@ def _finished_results(plan: ProtocolPlan) -> dict[str, Any]:
         for job in plan.expand(results):
             if job.key in results or job.run_dir is None:
                 continue
-            result_file = job.run_dir / "result.json"
-            if result_file.exists():
-                results[job.key] = json.loads(result_file.read_text())
+            result = read_job_result(job.run_dir, job.required_config)
+            if result is not None:
+                results[job.key] = result
                 added = True
         if not added:
             return results

@@ -55,7 +55,13 @@ from typing import Any, Protocol
 
 from pved.blas import kernel_env
 from pved.errors import PvedError
-from pved.runs import RESTORED_FROM, atomic_write_json, claim_holder, last_logged_step
+from pved.runs import (
+    RESTORED_FROM,
+    atomic_write_json,
+    claim_holder,
+    last_logged_step,
+    to_jsonable,
+)
 
 #: Environment of every worker: one thread per run (parallelism comes from runs side by
 #: side), one OpenBLAS kernel on every machine, headless rendering.
@@ -89,6 +95,10 @@ class Job:
         end_product: whether the experiment wants the job's result for itself; False for a
             stage made only for the jobs that depend on it, which runs only while one of
             them is still to be made (module docstring).
+        required_config: entries the ``config`` of ``run_dir/config.json`` must hold for
+            a ``result.json`` there to count as this job's: a run made by code that
+            computed otherwise (and, restored, cannot be checked by its config hash,
+            whose inputs are gone) is then made again rather than taken as it is.
     """
 
     key: str
@@ -100,6 +110,7 @@ class Job:
     tags: Mapping[str, Any] = field(default_factory=dict)
     priority: int = 0
     end_product: bool = True
+    required_config: Mapping[str, Any] = field(default_factory=dict)
 
 
 class Planner(Protocol):
@@ -371,15 +382,22 @@ class _ProcessExecutor:
             thread.join(timeout=WORKER_STOP_GRACE_S)
 
 
-def _read_result(run_dir: Path | None) -> Any:
-    """The ``result.json`` in ``run_dir``, or None where there is none (or no run dir)."""
+def read_job_result(run_dir: Path | None, required_config: Mapping[str, Any] | None = None) -> Any:
+    """The ``result.json`` in ``run_dir``, or None where there is none (or no run dir), or
+    where ``run_dir/config.json``'s config lacks an entry of ``required_config``."""
     if run_dir is None:
         return None
     try:
-        return json.loads((run_dir / "result.json").read_text())
+        result = json.loads((run_dir / "result.json").read_text())
+        if required_config:
+            config = json.loads((run_dir / "config.json").read_text()).get("config", {})
+            wanted = json.loads(json.dumps(to_jsonable(dict(required_config))))
+            if any(config.get(k) != v for k, v in wanted.items()):
+                return None  # made by code that computed otherwise: made again
+        return result
     except FileNotFoundError:
         return None
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
         return None  # damaged: the job runs, and its stage says what is wrong
 
 
@@ -573,7 +591,7 @@ def _run(
     while True:
         for job in planner.expand(results):
             if job.key not in known:
-                on_disk[job.key] = _read_result(job.run_dir)
+                on_disk[job.key] = read_job_result(job.run_dir, job.required_config)
             # the latest definition: a selection can make a stage an end product
             known[job.key] = job
         found = {k: r for k, r in on_disk.items() if r is not None}

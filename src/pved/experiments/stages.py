@@ -644,6 +644,19 @@ class TransferSpec:
     shaping_action: str
 
 
+def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
+    """The entries of a shaped transfer run's config that say how Eq. 10 is computed
+    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
+    target action encoded, and the shaped reward scaled by its return's std but never
+    clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
+    hashes differ, and a protocol does not take them (``Job.required_config``)."""
+    return {
+        "bank_time": get_preset(pair).pairing.align,
+        "shaping_action": shaping_action,
+        "reward_scaling": "scaled-unclipped",
+    }
+
+
 def transfer_spec(
     pair: str,
     method: str = "pved",
@@ -713,15 +726,7 @@ def transfer_spec(
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-        # How Eq. 10 is computed (docs/decisions.md): the bank read on the pairs' time
-        # base, the policy's mean action encoded, and the shaped reward scaled by its
-        # return's std but never clipped. Runs made before these existed computed
-        # otherwise, so their config hashes differ and they are not taken for these.
-        config.update(
-            bank_time=preset.pairing.align,
-            shaping_action=shaping_action,
-            reward_scaling="scaled-unclipped",
-        )
+        config.update(eq10_config(pair, shaping_action))
         # both only when set, so the runs made before they existed keep their config hashes
         if shaping_start:
             config["shaping_start"] = shaping_start
