@@ -402,3 +402,20 @@ def test_locomotion_rollouts_record_x_and_write_fig8(data: SubspaceData, tmp_pat
     (out / "numbers.json").write_text(json.dumps(numbers))
     html = build_pair_report("walker-hopper", [out], tmp_path / "r.html").read_text()
     assert "Fig. 8" in html and "x split: group G2" in html
+
+
+def test_bound_matches_steps_on_the_banks_time_base() -> None:
+    # pved bound pairs target step t with the source step the bank gives it in transfer:
+    # on humanoid-ant (0.015 s against 0.05 s) Ant step 3 meets Humanoid step 10
+    from pved.analysis.bound import match_steps
+    from pved.analysis.tsne import EpisodeRecord
+
+    def episode(length: int) -> EpisodeRecord:
+        return EpisodeRecord(
+            np.zeros((length, 2)), np.zeros((length, 1)), np.zeros(length), 0, None, {}, False
+        )
+
+    source, target = episode(400), episode(150)
+    np.testing.assert_array_equal(match_steps(source, target)[:4], [0, 1, 2, 3])
+    scaled = match_steps(source, target, 0.05 / 0.015)
+    np.testing.assert_array_equal(scaled[[0, 3, 30, 149]], [0, 10, 100, 399])
