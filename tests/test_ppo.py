@@ -114,9 +114,9 @@ def test_rollout_bootstraps_truncation_and_not_termination() -> None:
 
 def test_a_shaped_reward_is_scaled_but_never_clipped() -> None:
     # A shaped env reports its term in info["reward_shaping"]: PPO divides its reward by
-    # the running std σ of the return of what it optimises, r_env − β·D, and does not
-    # clip it, so the optimised reward is exactly (r_env − β·D)/σ (linear in β); plain
-    # PPO's reward is clipped as before.
+    # the running std σ of the return of what it optimises, r_env − β·D, clips the env
+    # part as plain PPO does and never the term, so the optimised reward is (r_env −
+    # β·D)/σ wherever the env clip does not bind (linear in β).
     class Shaped(PointTarget1D):
         def __init__(self, n: int, shaping: np.ndarray | None) -> None:
             super().__init__(n, max_episode_steps=7)
@@ -149,7 +149,13 @@ def test_a_shaped_reward_is_scaled_but_never_clipped() -> None:
     sigma = math.sqrt(float(shaped.ret_rms.var) + 1e-8)
     env_last = shaped.env.env_rewards[-1]  # type: ignore[attr-defined]
     np.testing.assert_allclose(shaped.buf_rew[-1], (env_last + spike[-1]) / sigma)
-    assert shaped.clipped_share > 0.0  # counted, not clipped
+    # the env part is clipped as in plain PPO (here it never reaches the clip) ...
+    assert shaped.clipped_share == plain.clipped_share == 0.0
+    # ... so a zero term is plain PPO's reward to the bit
+    zero = _Trainer(Shaped(3, np.zeros((20, 3))), cfg)
+    zero.reset_env(0)
+    zero.rollout()
+    np.testing.assert_array_equal(zero.buf_rew, plain.buf_rew)
 
 
 def test_ppo_gives_a_shaped_env_the_clipped_mean_action_before_each_step() -> None:

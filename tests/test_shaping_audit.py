@@ -28,14 +28,14 @@ def test_clip_shares_of_the_two_treatments() -> None:
     done[49::50] = 1.0
     # no term: both treatments are plain PPO's normaliser, and it never clips unit rewards
     none = clip_shares(env, np.zeros_like(env), done)
-    assert none["sum"] == none["env"] == none["shaping_over_clip"] == 0.0
+    assert none["sum"] == none["env"] == none["env_part"] == none["shaping_over_clip"] == 0.0
     assert none["env_weight"] == pytest.approx(1.0)
     # a term 1000x the env reward on a tenth of the steps: fed to the normaliser it
     # inflates σ, shrinking the env reward's weight 100-fold; on the env reward alone
     # nothing changes for the env part, and the term passes unclipped
     shaping = np.where(rng.random(env.shape) < 0.1, -1000.0, 0.0)
     both = clip_shares(env, shaping, done)
-    assert both["env"] == 0.0 and both["shaping_over_clip"] > 0.05
+    assert both["env"] == both["env_part"] == 0.0 and both["shaping_over_clip"] > 0.05
     assert both["env_weight"] < 0.02
     # one spike after a calm stretch: the old treatment clips it
     spike = np.zeros_like(env)

@@ -7,12 +7,12 @@ and source bank, this module measures, on the same target states:
 - **which action is encoded**: D = KL(q_φS(c|s_S,a_S) ‖ q_φT(c|s_T,a_T)) with a_T the
   policy's mean action (what the pairs and the bank record) and with the sampled, clipped
   action the env is stepped with;
-- **where PPO's reward clip would bind**: PPO divides rewards by the running std σ of the
-  discounted return and clips them to ±clip. Fed env reward + shaping, the share of steps
-  beyond the clip (clipped before 2026-12-05; scaled and left unclipped today,
-  ``pved.rl.ppo``); fed the env reward alone (plain PPO), the same share; and, for the
-  alternative of a σ of the env reward alone with the term added after scaling, the share
-  of steps where the term alone exceeds the clip in those units;
+- **where PPO's reward clip binds**: PPO divides rewards by the running std σ of the
+  discounted return and clips them to ±clip. The share of steps the clip cut when it
+  acted on env reward + shaping (before 2026-12-05), the share it cuts now that it acts
+  on the env part alone (σ still of the shaped return, the term never clipped,
+  ``pved.rl.ppo``), plain PPO's share, and, for the alternative of a σ of the env return
+  alone, the share of steps where the term alone would exceed the clip;
 - **the term's size**: β·D against |r_env| per step.
 
 The rollout is a fresh policy's: a reading of where training starts, where the term is
@@ -128,24 +128,25 @@ def clip_shares(
     gamma: float = 0.99,
     clip: float = 10.0,
 ) -> dict[str, float]:
-    """Share of steps whose scaled reward PPO's ±``clip`` binds, per treatment.
+    """Share of steps PPO's ±``clip`` binds on, per treatment of a shaped reward.
 
     Args:
         env_reward, shaping, done: (T, N) per step (shaping is −β·D, ≤ 0).
 
     Returns:
-        ``sum``: steps whose (r_env + shaping)/σ_sum lies beyond ±``clip`` (what the
-        clip cut before 2026-12-05; today such a shaped reward is left unclipped);
-        ``env``: the same for r_env/σ_env, plain PPO's reward on these steps;
-        ``shaping_over_clip``: steps where shaping/σ_env alone exceeds ``clip`` (the
-        size the term would take in PPO's units were σ taken of the env reward alone);
-        ``env_weight``: the mean of σ_env/σ_sum, how much smaller every reward is in
-        PPO's units than plain PPO's scaling would make it (the ratio of env reward to
-        term is the same under both scalings).
+        ``sum``: steps whose (r_env + shaping)/σ_sum lies beyond ±``clip``, σ_sum the
+        running std of the shaped return: what the clip cut before 2026-12-05;
+        ``env_part``: steps whose r_env/σ_sum lies beyond it, what it cuts today (the
+        term is never clipped); ``env``: r_env/σ_env with σ_env of the env return
+        alone, plain PPO's share on these rewards; ``shaping_over_clip``: steps where
+        shaping/σ_env exceeds ``clip``, the size the term would take were σ taken of the
+        env return alone (the alternative not taken); ``env_weight``: the mean of
+        σ_env/σ_sum, how much smaller the env reward is in PPO's units than plain PPO
+        makes it (the ratio of env reward to term is the same either way).
     """
     if not (env_reward.shape == shaping.shape == done.shape) or env_reward.ndim != 2:
         raise PvedError("clip_shares needs equal (T, N) arrays")
-    hits = {"sum": 0, "env": 0, "shaping_over_clip": 0}
+    hits = {"sum": 0, "env_part": 0, "env": 0, "shaping_over_clip": 0}
     scales: dict[str, list[float]] = {"sum": [], "env": []}
     for key, stream in (("sum", env_reward + shaping), ("env", env_reward)):
         rms, acc = RunningMeanStd(()), np.zeros(env_reward.shape[1])
@@ -155,13 +156,13 @@ def clip_shares(
             scale = math.sqrt(float(rms.var) + 1e-8)
             scales[key].append(scale)
             hits[key] += int(np.count_nonzero(np.abs(stream[i] / scale) > clip))
-            if key == "env":
+            if key == "sum":
+                hits["env_part"] += int(np.count_nonzero(np.abs(env_reward[i] / scale) > clip))
+            else:
                 big = np.abs(shaping[i]) / scale > clip
                 hits["shaping_over_clip"] += int(np.count_nonzero(big))
             acc[done[i].astype(bool)] = 0.0
     shares = {k: v / env_reward.size for k, v in hits.items()}
-    # the env reward's weight in the optimised reward under the old treatment, relative
-    # to plain PPO's: σ_env/σ_sum (1 today; below 1 the term has shrunk the task reward)
     shares["env_weight"] = float(np.mean(np.divide(scales["env"], scales["sum"])))
     return shares
 

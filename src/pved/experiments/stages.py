@@ -647,13 +647,13 @@ class TransferSpec:
 def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
     """The entries of a shaped transfer run's config that say how Eq. 10 is computed
     (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
-    target action encoded, and the shaped reward scaled by its return's std but never
+    target action encoded, and the term scaled by the shaped return's std but never
     clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
     hashes differ, and a protocol does not take them (``Job.required_config``)."""
     return {
         "bank_time": get_preset(pair).pairing.align,
         "shaping_action": shaping_action,
-        "reward_scaling": "scaled-unclipped",
+        "reward_scaling": "term-scaled-unclipped",
     }
 
 

@@ -90,7 +90,7 @@ class PPOConfig:
             the policy) and the clip applied after it.
         normalize_reward, reward_clip: scale rewards by the running std of the
             discounted return (as Gymnasium's NormalizeReward), then clip; a shaped
-            env's reward (env + Eq. 10's term) is scaled alike and not clipped.
+            env's term is scaled by the same std (of the shaped return) and not clipped.
         seed: seeds the networks' initialisation, the action noise, the minibatch
             shuffles and the env's reset.
         checkpoint_every: env steps between checkpoints (0: none).
@@ -476,8 +476,7 @@ class _Trainer:
         self.ep_ret = np.zeros(config.num_envs, dtype=np.float64)
         self.ep_len = np.zeros(config.num_envs, dtype=np.int64)
         self.reward_terms: dict[str, float] = {}  # per-step means of the last rollout
-        # share of the last rollout's scaled rewards beyond ±reward_clip (clipped for
-        # plain PPO, left as they are for a shaped env)
+        # share of the last rollout's scaled env rewards the ±reward_clip bound
         self.clipped_share = 0.0
         self.obs = np.zeros((config.num_envs, self.obs_dim), dtype=np.float64)
         self.next_checkpoint = config.checkpoint_every
@@ -598,7 +597,7 @@ class _Trainer:
         # per-step sums of the env's named reward terms (and of the shaping wrapper's
         # env_reward / reward_shaping), so a shaped run shows what each part contributed
         term_sums: dict[str, float] = {}
-        clip_hits = 0  # steps whose scaled reward lay beyond ±reward_clip
+        clip_hits = 0  # steps whose scaled env reward the ±reward_clip bound
         for t in range(cfg.steps_per_env):
             obs_n = self.obs_norm(self.obs)
             mean, value = self._forward(obs_n)
@@ -638,19 +637,25 @@ class _Trainer:
 
             if cfg.normalize_reward:
                 # Rewards are divided by the running std σ of the discounted return of the
-                # reward optimised. A shaped env (info["reward_shaping"]) is not clipped:
-                # its reward is then exactly (r_env − β·D)/σ, Eq. 10's sum times one
-                # positive number, so β weighs the term against the env reward linearly.
-                # The ±clip would cut the term where it is largest (docs/decisions.md,
-                # "Reward normalisation under shaping"); plain PPO keeps it.
-                shaped = "reward_shaping" in info
+                # reward optimised, and the env reward is clipped to ±clip as in plain PPO.
+                # A shaped env's term (info["reward_shaping"]) is divided by the same σ and
+                # never clipped, so the reward is (r_env − β·D)/σ, Eq. 10's sum times one
+                # positive number, wherever the env clip does not bind (as often as in
+                # plain PPO): β weighs the term linearly, and a zero term is plain PPO
+                # (docs/decisions.md, "Reward normalisation under shaping").
+                term = info.get("reward_shaping")
                 self.ret_acc = self.ret_acc * cfg.gamma + reward
                 self.ret_rms.update(self.ret_acc)
-                reward = reward / math.sqrt(float(self.ret_rms.var) + 1e-8)
-                beyond = np.abs(reward) > cfg.reward_clip
-                clip_hits += int(np.count_nonzero(beyond))
-                if not shaped:
-                    reward = np.clip(reward, -cfg.reward_clip, cfg.reward_clip)
+                scale = math.sqrt(float(self.ret_rms.var) + 1e-8)
+                env_part = reward
+                if term is not None:
+                    term = np.asarray(term, dtype=np.float64)
+                    env_part = np.asarray(info.get("env_reward", reward - term), np.float64)
+                scaled = env_part / scale
+                clip_hits += int(np.count_nonzero(np.abs(scaled) > cfg.reward_clip))
+                reward = np.clip(scaled, -cfg.reward_clip, cfg.reward_clip)
+                if term is not None:
+                    reward = reward + term / scale
                 self.ret_acc[done] = 0.0
             self.buf_rew[t] = reward
             self.buf_done[t] = done
