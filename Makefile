@@ -49,18 +49,18 @@ restore: $(STAMP)
 	$(VENV)/bin/pved archive restore --archive docs/protocol/$(PAIR)-$(BUDGET) \
 		--protocol reports/$(PAIR)-$(BUDGET)
 
-# "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
-# PVED's best evaluation run, the scale of Eq. 10's distance on the training pairs
-# (scripts/shaping_scale.py) and how much the pairing and the models' shared codes relate
-# the two agents (scripts/pairing_signal.py), into reports/<pair>-<budget>/subspaces/;
-# for jaco-fetch also where on the table each evaluation run's policy succeeds
-# (scripts/peg_success_map.py)
+# "What the subspaces learned" for a finished protocol (`pved analyze`, pved.analysis):
+# t-SNE, bound and the HTML report of PVED's best evaluation run (subspaces), the scale of
+# Eq. 10's distance on the training pairs (shaping-scale), how much the pairing and the
+# models' shared codes relate the two agents (pairing-signal) and each shaped method by
+# source policy (source-reading), into reports/<pair>-<budget>/subspaces/; for jaco-fetch
+# also where on the table each evaluation run's policy succeeds (peg-success)
 subspaces: $(STAMP)
-	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/shaping_scale.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/pairing_signal.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/source_reading.py reports/$(PAIR)-$(BUDGET)
-	$(if $(filter jaco-fetch,$(PAIR)),$(PY) scripts/peg_success_map.py \
+	$(VENV)/bin/pved analyze subspaces reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze shaping-scale reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze pairing-signal reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze source-reading reports/$(PAIR)-$(BUDGET)
+	$(if $(filter jaco-fetch,$(PAIR)),$(VENV)/bin/pved analyze peg-success \
 		reports/$(PAIR)-$(BUDGET) --copies 4)
 
 # Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
