@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean reproduce publish subspaces archive restore
+.PHONY: demo test lint docs system-deps clean reproduce publish subspaces archive restore
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -89,8 +89,15 @@ publish:
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 
-test: $(STAMP) lint
+test: $(STAMP) lint docs
 	$(PY) -m pytest -q
+
+# The documentation site (mkdocs.yml: docs/ and the docstrings into site/), offline, in
+# seconds; warnings are errors, so a broken link or anchor, a page missing from the nav's
+# files or a docstring mkdocstrings cannot read fails it. (The variable silences a notice
+# the theme prints on every build.)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks scripts
@@ -98,4 +105,4 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 clean:
-	rm -rf $(VENV) runs reports
+	rm -rf $(VENV) runs reports site
