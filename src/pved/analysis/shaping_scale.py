@@ -26,7 +26,7 @@ The same rows once more, each target step against the source step at the same st
 another training episode (another task draw: another reach target, another slope):
 how often D is lower against its own source step than against that one. Near 1, the
 code tells this episode's task from another's at the same moment; near 0.5, the term
-could only say when to move, not where (compare `scripts/peg_success_map.py`'s own
+could only say when to move, not where (compare :mod:`pved.analysis.peg_success`'s own
 hole against the reflected one, on the target task).
 
 A second table asks whether D tells a good target from a bad one: for each shaped
