@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint system-deps clean reproduce publish subspaces archive restore
+.PHONY: demo test lint docs system-deps clean reproduce publish subspaces archive restore
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -49,18 +49,18 @@ restore: $(STAMP)
 	$(VENV)/bin/pved archive restore --archive docs/protocol/$(PAIR)-$(BUDGET) \
 		--protocol reports/$(PAIR)-$(BUDGET)
 
-# "What the subspaces learned" for a finished protocol: t-SNE, bound and the HTML report of
-# PVED's best evaluation run, the scale of Eq. 10's distance on the training pairs
-# (scripts/shaping_scale.py) and how much the pairing and the models' shared codes relate
-# the two agents (scripts/pairing_signal.py), into reports/<pair>-<budget>/subspaces/;
-# for jaco-fetch also where on the table each evaluation run's policy succeeds
-# (scripts/peg_success_map.py)
+# "What the subspaces learned" for a finished protocol (`pved analyze`, pved.analysis):
+# t-SNE, bound and the HTML report of PVED's best evaluation run (subspaces), the scale of
+# Eq. 10's distance on the training pairs (shaping-scale), how much the pairing and the
+# models' shared codes relate the two agents (pairing-signal) and each shaped method by
+# source policy (source-reading), into reports/<pair>-<budget>/subspaces/; for jaco-fetch
+# also where on the table each evaluation run's policy succeeds (peg-success)
 subspaces: $(STAMP)
-	$(PY) scripts/subspaces_report.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/shaping_scale.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/pairing_signal.py reports/$(PAIR)-$(BUDGET)
-	$(PY) scripts/source_reading.py reports/$(PAIR)-$(BUDGET)
-	$(if $(filter jaco-fetch,$(PAIR)),$(PY) scripts/peg_success_map.py \
+	$(VENV)/bin/pved analyze subspaces reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze shaping-scale reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze pairing-signal reports/$(PAIR)-$(BUDGET)
+	$(VENV)/bin/pved analyze source-reading reports/$(PAIR)-$(BUDGET)
+	$(if $(filter jaco-fetch,$(PAIR)),$(VENV)/bin/pved analyze peg-success \
 		reports/$(PAIR)-$(BUDGET) --copies 4)
 
 # Copy a finished protocol's summaries and figures (not its runs or HTML) into docs/protocol/,
@@ -89,8 +89,15 @@ publish:
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 
-test: $(STAMP) lint
+test: $(STAMP) lint docs
 	$(PY) -m pytest -q
+
+# The documentation site (mkdocs.yml: docs/ and the docstrings into site/), offline, in
+# seconds; warnings are errors, so a broken link or anchor, a page missing from the nav's
+# files or a docstring mkdocstrings cannot read fails it. (The variable silences a notice
+# the theme prints on every build.)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks scripts
@@ -98,4 +105,4 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 clean:
-	rm -rf $(VENV) runs reports
+	rm -rf $(VENV) runs reports site

@@ -112,6 +112,36 @@ def one_line_error(capsys: pytest.CaptureFixture[str], *argv: object, match: str
     assert match in lines[0], lines[0]
 
 
+@pytest.mark.parametrize(
+    ("verb", "option"),
+    [("transfer", "--model"), ("train-model", "--model"), ("collect-pairs", "--align"),
+     ("train-policy", "--agent"), ("train-policy", "--task"), ("protocol", "--pair")],
+)  # fmt: skip
+def test_help_names_the_values_a_choice_takes(
+    verb: str, option: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the names come from the registries that check them, so --help and the one-line
+    # error for a wrong name (test_bad_input_is_one_line_and_nonzero) list the same ones
+    from pved.config import PRESETS
+    from pved.envs.registry import AGENTS, TASKS
+    from pved.pairing.align import ALIGNMENTS
+
+    with pytest.raises(SystemExit) as exit_info:
+        main([verb, "--help"])
+    assert exit_info.value.code == 0
+    text = "".join(capsys.readouterr().out.split())  # argparse wraps lines anywhere
+    names = {
+        "--model": [*MODELS, *(["ppo", "oracle"] if verb == "transfer" else [])],
+        "--align": ALIGNMENTS,
+        "--agent": AGENTS,
+        "--task": TASKS,
+        "--pair": PRESETS,
+    }[option]
+    assert all(name in text for name in names), text
+    if verb != "train-policy":  # the one verb here that takes no pair
+        assert all(pair in text for pair in PRESETS)
+
+
 def test_bad_input_is_one_line_and_nonzero(
     pipeline: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

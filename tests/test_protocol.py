@@ -32,7 +32,6 @@ from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 
-ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved.cli"]
 
 
@@ -858,7 +857,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert report.count('src="data:image/gif;base64,') == 2
 
     # "what the subspaces learned" of PVED's best evaluation run (`make subspaces`)
-    sub = _run_script("subspaces_report", str(out), "--episodes", "2")
+    sub = _analyze("subspaces", str(out), "--episodes", "2")
     assert sub.returncode == 0, sub.stderr[-3000:]
     chosen = json.loads((out / "subspaces" / "chosen.json").read_text())
     pved_runs = methods["pved"]["runs"]
@@ -871,7 +870,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert "Theorem 1" in (out / "subspaces" / "report.html").read_text()
 
     # the scale of Eq. 10's distance on the training pairs, matched and shuffled
-    scaled = _run_script("shaping_scale", str(out), "--rows", "500")
+    scaled = _analyze("shaping-scale", str(out), "--rows", "500")
     assert scaled.returncode == 0, scaled.stderr[-3000:]
     scales = json.loads((out / "subspaces" / "shaping_scale.json").read_text())["pairs"]
     assert set(scales["reacher"]) == {"pved"}  # plain PPO has no model
@@ -916,8 +915,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     alpha3 = json.loads(
         (out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "config.json").read_text()
     )["config"]["model_config"]["alpha3"]
-    measured = _run_script(
-        "pairing_signal",
+    measured = _analyze(
+        "pairing-signal",
         str(out),
         *("--rows", "2000", "--code-rows", "500", "--alpha3", f"{alpha3:g}", "0"),
     )
@@ -934,8 +933,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert selected["kl_prior_bank"] > 0 and selected["bank_vs_target"]["q50"] >= 0
     # the same measures of a dataset and a model on their own (e.g. another alignment's)
     model_path = out / "runs" / "reacher" / "model" / "pved" / f"seed{init}" / "model.pt"
-    alone = _run_script(
-        "pairing_signal",
+    alone = _analyze(
+        "pairing-signal",
         "--datasets",
         str(next((out / "runs" / "reacher" / "pairs").glob("*/seed0/pairs.npz"))),
         *("--rows", "2000", "--code-rows", "500", "--model", str(model_path)),
@@ -1070,32 +1069,18 @@ def test_plot_of_a_directory_that_is_no_protocol(tmp_path: Path) -> None:
     assert res.returncode == 2 and "not a protocol directory" in res.stderr
 
 
-def _run_script(name: str, *args: str) -> subprocess.CompletedProcess[str]:
-    """Run ``scripts/<name>.py`` with ``args`` as a user would, output captured."""
-    script = str(ROOT / "scripts" / f"{name}.py")
+def _analyze(analysis: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``pved analyze <analysis>`` with ``args`` as a user would, output captured."""
     return subprocess.run(
-        [sys.executable, script, *args], env=_env(), capture_output=True, text=True
+        [*PVED, "analyze", analysis, *args], env=_env(), capture_output=True, text=True
     )
 
 
-def _script(name: str) -> Any:
-    """A module of scripts/ (not a package), loaded by path."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episodes(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episodes() -> None:
     import numpy as np
 
-    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # it imports shaping_scale
-    ridge_r2 = _script("pairing_signal").ridge_r2
+    from pved.analysis.pairing_signal import ridge_r2
+
     rng = np.random.default_rng(0)
     x = rng.normal(size=(20_000, 3))
     episode = np.repeat(np.arange(200), 100)
@@ -1110,20 +1095,18 @@ def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episode
 def test_pairing_signal_refuses_a_corrupt_dataset_in_one_line(tmp_path: Path) -> None:
     bad = tmp_path / "pairs.npz"
     bad.write_bytes(b"not a dataset")
-    res = _run_script("pairing_signal", "--datasets", str(bad))
-    assert res.returncode == 1 and res.stdout == ""  # no half-printed table
+    res = _analyze("pairing-signal", "--datasets", str(bad))
+    assert res.returncode == 2 and res.stdout == ""  # no half-printed table
     assert res.stderr.strip().count("\n") == 0 and "corrupt" in res.stderr
-    usage = _run_script("pairing_signal", "--model", str(bad))  # --model needs --datasets
+    usage = _analyze("pairing-signal", "--model", str(bad))  # --model needs --datasets
     assert usage.returncode == 2 and "--datasets" in usage.stderr
+    assert usage.stderr.strip().count("\n") == 0
 
 
-def test_repairing_by_phase_finds_the_partner_a_lag_took_away(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_repairing_by_phase_finds_the_partner_a_lag_took_away() -> None:
+    from pved.analysis import pairing_signal
     from pved.pairing.dataset import PairedDataset
 
-    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # it imports shaping_scale
-    script = _script("pairing_signal")
     rng = np.random.default_rng(0)
     episodes, length, stride = 60, 200, 10
     t = np.tile(np.arange(length), episodes)
@@ -1136,7 +1119,7 @@ def test_repairing_by_phase_finds_the_partner_a_lag_took_away(
     # of the standardised state, as on the locomotion pairs
     obs_t = np.stack([np.cos(angle_t), np.cos(angle_t + 0.3), np.sin(angle_t)], 1)
     obs_s = np.stack([np.cos(angle_s + k) for k in (0.0, 0.2, 0.4, 1.6)], 1)
-    order = rng.permutation(len(t))  # stored out of time order: the script must sort
+    order = rng.permutation(len(t))  # stored out of time order: the analysis must sort
     dataset = PairedDataset(
         obs_source=obs_s[order],
         act_source=rng.normal(size=(len(t), 2))[order],
@@ -1155,19 +1138,21 @@ def test_repairing_by_phase_finds_the_partner_a_lag_took_away(
 
     def r2(source_rows: np.ndarray | None = None) -> float:
         paired = x_s if source_rows is None else x_s[source_rows]
-        return script.pairing_r2(paired, x_t, dataset.episode, len(t), 0)["source_to_target"]
+        return pairing_signal.pairing_r2(paired, x_t, dataset.episode, len(t), 0)[
+            "source_to_target"
+        ]
 
     as_paired = r2()
-    by_phase = script.repaired_source_rows(dataset, "phase", 0)
-    at_random = script.repaired_source_rows(dataset, "random in window", 0)
+    by_phase = pairing_signal.repaired_source_rows(dataset, "phase", 0)
+    at_random = pairing_signal.repaired_source_rows(dataset, "random in window", 0)
     assert as_paired < 0.3 and r2(by_phase) > 0.8 and r2(at_random) < 0.3
     for rows in (by_phase, at_random):  # a partner never leaves its episode or window
         assert (dataset.episode[rows] == dataset.episode).all()
         assert np.abs(dataset.t_source[rows] - dataset.t_target).max() <= 10
-    direction = script.repaired_source_rows(dataset, "random-direction phase", 0)
+    direction = pairing_signal.repaired_source_rows(dataset, "random-direction phase", 0)
     assert (dataset.episode[direction] == dataset.episode).all()
     with pytest.raises(PvedError, match="unknown re-pairing"):
-        script.repaired_source_rows(dataset, "dtw", 0)
+        pairing_signal.repaired_source_rows(dataset, "dtw", 0)
 
 
 class _PartCodes:
@@ -1184,8 +1169,9 @@ class _PartCodes:
 def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() -> None:
     import numpy as np
 
-    target_part_swapped = _script("shaping_scale").target_part_swapped
-    matched_and_shuffled = _script("shaping_scale").matched_and_shuffled
+    from pved.analysis.shaping_audit import matched_and_shuffled
+    from pved.analysis.shaping_scale import target_part_swapped
+
     rng = np.random.default_rng(0)
     x_t = rng.normal(size=(400, 5)).astype(np.float32)  # 3 state columns, 2 action
     x_s = x_t + 0.01 * rng.normal(size=x_t.shape).astype(np.float32)
@@ -1207,7 +1193,8 @@ def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() 
 def test_another_episodes_source_step_is_farther_only_if_the_code_reads_the_episode() -> None:
     import numpy as np
 
-    other_episode_same_step = _script("shaping_scale").other_episode_same_step
+    from pved.analysis.shaping_scale import other_episode_same_step
+
     rng = np.random.default_rng(0)
     episode, step = np.repeat(np.arange(40), 10), np.tile(np.arange(10), 40)
     # column 0 is the step, the same in every episode; columns 1-4 are the episode's own
@@ -1228,7 +1215,8 @@ def test_another_episodes_source_step_is_farther_only_if_the_code_reads_the_epis
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
     import numpy as np
 
-    spearman_by_seed = _script("shaping_scale").spearman_by_seed
+    from pved.analysis.shaping_scale import spearman_by_seed
+
     # five seeds, three runs each; only seed 3's runs score, and they end nearest
     seeds = [s for s in range(5) for _ in range(3)]
     d_end = np.array([5.0, 6, 7, 5, 6, 7, 5, 6, 7, 1, 2, 3, 5, 6, 7])

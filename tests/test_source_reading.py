@@ -1,4 +1,4 @@
-"""scripts/source_reading.py on a hand-made protocol directory whose numbers are known."""
+"""`pved analyze source-reading` on a hand-made protocol directory whose numbers are known."""
 
 from __future__ import annotations
 
@@ -10,8 +10,6 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "scripts" / "source_reading.py"
 BETA = 0.01
 
 
@@ -66,7 +64,11 @@ def _protocol(root: Path) -> None:
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "pved", "analyze", "source-reading", *args],
+        capture_output=True,
+        text=True,
+    )
 
 
 def test_source_reading_matches_a_hand_computation(tmp_path: Path) -> None:
@@ -125,6 +127,6 @@ def test_source_reading_refuses_bad_input_in_one_line(tmp_path: Path, broken: st
         summary["selection"]["ant"]["pved"]["candidates"].pop()
         (tmp_path / "summary.json").write_text(json.dumps(summary))
     done = _run(str(tmp_path))
-    assert done.returncode != 0
+    assert done.returncode == 2 and done.stderr.startswith("pved: error:")
     assert len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "subspaces" / "source_reading.json").exists()

@@ -355,6 +355,75 @@ def _cmd_video(args: argparse.Namespace) -> None:
     print(path)
 
 
+def _cmd_analyze(args: argparse.Namespace) -> None:
+    from pved.errors import PvedError
+
+    if args.analysis == "subspaces":
+        from pved.analysis.subspaces import subspaces_report
+
+        subspaces_report(args.protocol, args.pair, episodes=args.episodes, videos=args.videos)
+        print(args.protocol / "subspaces")
+        return
+    if args.analysis == "shaping-scale":
+        from pved.analysis.shaping_scale import protocol_shaping_scale
+
+        tables = protocol_shaping_scale(args.protocol, rows=args.rows, seed=args.seed)[1]
+        out = args.protocol / "subspaces" / "shaping_scale.json"
+    elif args.analysis == "source-reading":
+        from pved.analysis.source_reading import protocol_source_reading
+
+        tables = protocol_source_reading(args.protocol)[1]
+        out = args.protocol / "subspaces" / "source_reading.json"
+    elif args.analysis == "peg-success":
+        from pved.analysis.peg_success import peg_success
+
+        tables = peg_success(
+            args.path,
+            args.agent,
+            args.grid,
+            args.copies,
+            args.seed,
+            args.json,
+            args.shaping_model,
+            args.bank,
+        )[1]
+        is_protocol = (args.path / "protocol.json").is_file()
+        out = args.json or (args.path / "subspaces" / "peg_success.json" if is_protocol else None)
+    else:
+        from pved.analysis.pairing_signal import compare_datasets, protocol_pairing_signal
+
+        # the dataset options measure datasets, not a protocol: say so rather than ignore them
+        if not args.datasets and (
+            args.model or args.bank or args.repair or args.first_episodes is not None
+        ):
+            raise PvedError("--model, --bank, --repair and --first-episodes go with --datasets")
+        if args.bank and not args.model:
+            raise PvedError("--bank needs --model")
+        if args.datasets:
+            print(
+                compare_datasets(
+                    args.datasets,
+                    args.first_episodes,
+                    args.rows,
+                    args.code_rows,
+                    args.seed,
+                    args.model,
+                    args.bank,
+                    args.repair,
+                )
+            )
+            return
+        if args.protocol is None:
+            raise PvedError("give a protocol directory or --datasets")
+        tables = protocol_pairing_signal(
+            args.protocol, args.rows, args.code_rows, args.alpha3, args.seed
+        )[1]
+        out = args.protocol / "subspaces" / "pairing_signal.json"
+    print(tables)
+    if out is not None:
+        print(out)
+
+
 def _cmd_compare(args: argparse.Namespace) -> None:
     from pved.analysis.compare import compare_runs, format_comparison
     from pved.runs import atomic_write_json
@@ -367,6 +436,23 @@ def _cmd_compare(args: argparse.Namespace) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``pved`` argument parser (sub-commands)."""
+    # the names a choice takes, from the registries that check them (each checks its own
+    # and names the known ones in a one-line error, so argparse's `choices` is not used)
+    from pved.config import BUDGETS, PRESETS
+    from pved.envs.registry import AGENTS, TASKS
+    from pved.experiments.stages import REFERENCE_METHODS
+    from pved.models import MODELS
+    from pved.pairing.align import ALIGNMENTS
+
+    pairs = " | ".join(sorted(PRESETS))
+    models = " | ".join(sorted(MODELS))
+    methods = f"{models} | {' | '.join(REFERENCE_METHODS)}"
+    pair_help = f"{pairs} (default: %(default)s)"
+    pair_tasks = "; ".join(
+        f"{name}: {preset.training_task} | {preset.target_task}"
+        for name, preset in sorted(PRESETS.items())
+    )
+
     parser = argparse.ArgumentParser(prog="pved", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="verb", required=True)
 
@@ -384,8 +470,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_list)
 
     p = add("train-policy", "PPO for any agent on any task, with a seed")
-    p.add_argument("--agent", required=True)
-    p.add_argument("--task", required=True)
+    p.add_argument("--agent", required=True, help=" | ".join(AGENTS))
+    p.add_argument("--task", required=True, help=" | ".join(TASKS))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, help="env steps (default: the preset's)")
     p.add_argument("--reward", help="env reward variant, e.g. full")
@@ -395,7 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_train_policy)
 
     p = add("collect-pairs", "paired rollouts of both agents on the training task")
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument(
         "--source-policy",
         type=Path,
@@ -410,20 +496,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--align",
-        help="subsample (paper IV.A), time (same physical time), dtw (rounds of DTW on "
-        "the shared space) or phase (same moment of the stride, near the same time); "
-        "default: the pair's",
+        help=f"{' | '.join(ALIGNMENTS)}: subsample (paper IV.A), time (same physical time), "
+        "dtw (rounds of DTW on the shared space) or phase (same moment of the stride, near "
+        "the same time); default: the pair's",
     )
     p.add_argument(
         "--task",
         help="the task to pair the agents on: the pair's training task (default) or, for "
-        "analysis and not as in the paper, its target task (give both policies)",
+        f"analysis and not as in the paper, its target task (give both policies); {pair_tasks}",
     )
     p.set_defaults(func=_cmd_collect_pairs)
 
     p = add("train-model", "fit PVED (or a variant) on a paired dataset")
-    p.add_argument("--pair", default="reacher")
-    p.add_argument("--model", default="pved")
+    p.add_argument("--pair", default="reacher", help=pair_help)
+    p.add_argument("--model", default="pved", help=f"{models} (default: %(default)s)")
     p.add_argument(
         "--dataset",
         type=Path,
@@ -434,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_train_model)
 
     p = add("build-bank", "roll out the source's target-task policy for the shaping term")
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument(
         "--source-policy",
         type=Path,
@@ -445,11 +531,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_build_bank)
 
     p = add("transfer", "PPO of the target agent with the Eq. 10 shaping (or --model ppo)")
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument(
         "--model",
         default="pved",
-        help="a model name (shaping), ppo (no transfer) or oracle (the source's full reward)",
+        help=f"{methods}: a model (shaping), ppo (no transfer) or oracle (the source's full "
+        "reward); default: %(default)s",
     )
     p.add_argument("--seed", type=int, default=20000)
     p.add_argument(
@@ -519,8 +606,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="pved outputs of the pair (directories or files); gives the full pair report",
     )
-    p.add_argument("--pair", default="reacher")
-    p.add_argument("--methods", nargs="+", help="runs mode (default: pved ppo)")
+    p.add_argument("--pair", default="reacher", help=pair_help)
+    p.add_argument("--methods", nargs="+", help=f"runs mode: {methods} (default: pved ppo)")
     p.add_argument("--seeds", nargs="+", type=int, help="runs mode: transfer seeds (required)")
     p.add_argument(
         "--out",
@@ -538,7 +625,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "tsne", help="t-SNE of the shared and individual subspaces along rollouts (Figs. 4-7)"
     )
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
     p.add_argument(
         "--target-policy",
@@ -567,7 +654,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_tsne)
 
     p = sub.add_parser("bound", help="Theorem 1 / Corollary 1 against the measured gap")
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
     p.add_argument("--target-policy", type=Path, required=True)
     p.add_argument("--source-policy", type=Path, help="default: the shipped target-task one")
@@ -589,7 +676,7 @@ def build_parser() -> argparse.ArgumentParser:
         "sampled action on the same states, how often PPO's reward clip binds with the "
         "normaliser on env reward + shaping and on the env reward alone, per beta.",
     )
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
     p.add_argument("--bank", type=Path, required=True, help="bank.npz or its run directory")
     p.add_argument("--steps", type=int, default=32_768, help="env steps of the rollout")
@@ -606,7 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
         "training pairs for each.",
     )
     p.add_argument("--runs", type=Path, default=Path("runs"), help="root of the run directories")
-    p.add_argument("--pair", default="reacher")
+    p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument("--dataset", type=Path, required=True, help="pairs.npz or its run directory")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--epochs", type=int, help="default: the pair's")
@@ -630,11 +717,15 @@ def build_parser() -> argparse.ArgumentParser:
         "seed x source policy; curves with bootstrap CIs, summary.json/md. Rerunning the "
         "same command resumes.",
     )
-    p.add_argument("--pair", nargs="+", required=True)
+    p.add_argument("--pair", nargs="+", required=True, help=pairs)
     p.add_argument(
-        "--budget", default="smoke", help="smoke | quick | paper | paper-wide (81 evaluation runs)"
+        "--budget",
+        default="smoke",
+        help=f"{' | '.join(BUDGETS)} (paper-wide: 81 evaluation runs); default: %(default)s",
     )
-    p.add_argument("--methods", nargs="+", default=["pved", "ppo"])
+    p.add_argument(
+        "--methods", nargs="+", default=["pved", "ppo"], help=f"{methods} (default: pved ppo)"
+    )
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--address", help="a running Ray cluster (default: a local one)")
     p.add_argument("--workers", type=int, help="CPUs of the local Ray (default: all)")
@@ -768,6 +859,78 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--names", nargs=2, default=["A", "B"], metavar=("NAME_A", "NAME_B"))
     p.add_argument("--json", type=Path, help="also write the numbers here (atomically)")
     p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser(
+        "analyze",
+        help="what a finished protocol's runs say (`make subspaces` runs these)",
+        description="Analyses of a finished `pved protocol` directory; each writes its "
+        "JSON under PROTOCOL_DIR/subspaces/ and prints Markdown tables.",
+    )
+    analyses = p.add_subparsers(dest="analysis", required=True, metavar="ANALYSIS")
+    a = analyses.add_parser(
+        "subspaces",
+        help="t-SNE, Theorem 1's bound and the HTML report of PVED's best evaluation run",
+    )
+    a.add_argument("protocol", type=Path, metavar="PROTOCOL_DIR")
+    a.add_argument("--pair", help="the pair (default: the directory's only one)")
+    a.add_argument("--episodes", type=int, default=4, help="rollouts per agent (default 4)")
+    a.add_argument("--videos", action="store_true", help="embed one rollout per method")
+    a = analyses.add_parser(
+        "shaping-scale",
+        help="Eq. 10's distance on matched and unrelated training pairs, and along the runs",
+    )
+    a.add_argument("protocol", type=Path, metavar="PROTOCOL_DIR")
+    a.add_argument("--rows", type=int, default=20_000, help="training pairs sampled")
+    a.add_argument("--seed", type=int, default=0)
+    a = analyses.add_parser(
+        "pairing-signal",
+        help="how much the pairing relates the two agents, and what the shared codes hold",
+    )
+    a.add_argument("protocol", type=Path, nargs="?", metavar="PROTOCOL_DIR")
+    a.add_argument(
+        "--datasets",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="instead of a protocol: only the pairing's R², of each of these paired datasets",
+    )
+    a.add_argument(
+        "--first-episodes", type=int, help="with --datasets: only episodes 0..N-1 of each"
+    )
+    a.add_argument("--model", type=Path, help="with --datasets: also this model's codes")
+    a.add_argument("--bank", type=Path, help="with --model: the source bank on the target task")
+    a.add_argument(
+        "--repair",
+        action="store_true",
+        help="with --datasets: also the R² after re-pairing rows by phase, and two controls",
+    )
+    a.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
+    a.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
+    a.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
+    a.add_argument("--seed", type=int, default=0)
+    a = analyses.add_parser(
+        "source-reading",
+        help="each shaped method by source policy, and its tuning score against evaluation",
+    )
+    a.add_argument("protocol", type=Path, metavar="PROTOCOL_DIR")
+    a = analyses.add_parser(
+        "peg-success",
+        help="where on the table a Peg policy (or each of a jaco-fetch protocol's) succeeds",
+    )
+    a.add_argument(
+        "path",
+        type=Path,
+        metavar="POLICY_OR_PROTOCOL_DIR",
+        help="policy.pt, the run directory holding it, or a jaco-fetch protocol directory",
+    )
+    a.add_argument("--agent", default="fetch4", help="fetch4 (default) or jaco")
+    a.add_argument("--grid", type=int, default=11, help="hole positions a side")
+    a.add_argument("--copies", type=int, default=8, help="episodes per hole position")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--json", type=Path, help="also write the result here")
+    a.add_argument("--shaping-model", type=Path, help="model.pt or its run directory")
+    a.add_argument("--bank", type=Path, help="bank.npz or its run directory")
+    p.set_defaults(func=_cmd_analyze)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))

@@ -219,7 +219,9 @@ class _Pair:
     _cache: dict[tuple[str, str], np.ndarray | str] = field(default_factory=dict)
 
 
-def _load_summary(directory: Path) -> dict[str, Any]:
+def load_summary(directory: Path) -> dict[str, Any]:
+    """A finished ``pved protocol`` directory's ``summary.json``, checked to be one; a
+    :class:`PvedError` naming the problem otherwise."""
     path = Path(directory) / "summary.json"
     if not Path(directory).is_dir():
         raise PvedError(f"{directory}: not a directory (want a `pved protocol` output)")
@@ -265,7 +267,7 @@ def load_pairs(dirs: Sequence[Path]) -> dict[str, _Pair]:
         raise PvedError(f"{twice} is given twice: give each protocol directory once")
     pairs: dict[str, _Pair] = {}
     for directory in map(Path, dirs):
-        summary = _load_summary(directory)
+        summary = load_summary(directory)
         budget = str(summary.get("budget", "?"))
         for name, entry in summary["pairs"].items():
             metric, methods = _check_pair(directory / "summary.json", name, entry)

@@ -2,7 +2,7 @@
 against their evaluation runs.
 
 The protocol scores every β candidate on source policy 0 only (its tuning seeds), then
-evaluates the chosen one on every source policy. This script says what that hides:
+evaluates the chosen one on every source policy. This analysis says what that hides:
 
 * per method and source policy, the evaluation runs' mean final score, and the Eq. 10
   term over the last tenth of each run's training rollouts: D (the logged shaping term
@@ -15,28 +15,24 @@ evaluates the chosen one on every source policy. This script says what that hide
   Mann-Whitney p. It does not count that the candidate was picked for its tuning mean, so
   it says how far the tuning score over-rates the evaluation, not why.
 
-    .venv/bin/python scripts/source_reading.py reports/humanoid-ant-paper
+    pved analyze source-reading reports/humanoid-ant-paper
 
-Prints two Markdown tables and writes ``PROTOCOL_DIR/subspaces/source_reading.json`` (part
-of `make subspaces`). Runs restored
-from an archive keep no rollout rows; a source whose runs have none gets no D.
+Prints two Markdown tables and writes ``PROTOCOL_DIR/subspaces/source_reading.json``
+(:func:`protocol_source_reading`; part of `make subspaces`). Runs restored from an archive
+keep no rollout rows; a source whose runs have none gets no D.
 """
 
 from __future__ import annotations
 
-import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
-
-# isort: split
-import argparse
-import json
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.stats import mannwhitneyu
 
+from pved.analysis.claims import load_summary
 from pved.analysis.curves import reward_scale
+from pved.errors import PvedError
 from pved.runs import atomic_write_json
 
 TAIL = 0.1
@@ -96,16 +92,16 @@ def _cells(
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
-    args = parser.parse_args()
+def protocol_source_reading(protocol: Path) -> tuple[dict[str, Any], str]:
+    """Both tables of the module docstring for every shaped method of the finished
+    protocol directory ``protocol``.
 
-    summary_file = args.protocol / "summary.json"
-    if not summary_file.is_file():
-        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
-    summary = json.loads(summary_file.read_text())
-    runs_root = args.protocol / "runs"
+    Writes ``protocol/subspaces/source_reading.json`` and returns its content with the
+    tables as Markdown; a directory that is no finished protocol, a missing evaluation run,
+    a foreign ``metrics.jsonl`` or a chosen candidate not once in the selection raises
+    :class:`PvedError`, and nothing is written."""
+    summary = load_summary(protocol)
+    runs_root = protocol / "runs"
     result: dict[str, Any] = {"tail": TAIL, "pairs": {}}
     by_source_lines, tuning_lines = [], []
     for pair, entry in summary["pairs"].items():
@@ -119,18 +115,24 @@ def main() -> None:
                 r["key"] for r in runs if not (runs_root / r["key"] / "metrics.jsonl").is_file()
             ]
             if missing:
-                sys.exit(f"{runs_root / missing[0]}: an evaluation run is not in this directory")
+                raise PvedError(
+                    f"{runs_root / missing[0]}: an evaluation run is not in this directory"
+                )
             try:
                 sources = term_by_source(runs_root, runs, metric, float(beta))
             except (ValueError, KeyError) as exc:  # json's decode error is a ValueError
-                sys.exit(f"{pair}/{method}: a run's metrics.jsonl is not pved's ({exc})")
+                raise PvedError(
+                    f"{pair}/{method}: a run's metrics.jsonl is not pved's ({exc})"
+                ) from exc
             chosen = [
                 c
                 for c in summary["selection"][pair][method]["candidates"]
                 if c["beta"] == beta and c["init"] == state["init"]
             ]
             if len(chosen) != 1:
-                sys.exit(f"{pair}/{method}: the chosen candidate is not once in the selection")
+                raise PvedError(
+                    f"{pair}/{method}: the chosen candidate is not once in the selection"
+                )
             check = tuning_against_evaluation(
                 chosen[0]["scores"], [r[metric] for r in runs if int(r["source_policy"]) == 0]
             )
@@ -152,23 +154,17 @@ def main() -> None:
                 f"{check['evaluation_mean']:.2f} | {check['tuning_wins']:g} of "
                 f"{check['pairings']} | {p} |"
             )
-    print(
+    lines = [
         f"| pair | method | β | final mean by source | D, last {TAIL:.0%} of "
-        "rollouts, by source | term / env reward, by source |"
-    )
-    print("|---|---|---|---|---|---|")
-    print("\n".join(by_source_lines))
-    print()
-    print(
+        "rollouts, by source | term / env reward, by source |",
+        "|---|---|---|---|---|---|",
+        *by_source_lines,
+        "",
         "| pair | method | tuning mean (source 0) | evaluation mean, source 0 "
-        "| tuning run ahead | Mann-Whitney p (two-sided) |"
-    )
-    print("|---|---|---|---|---|---|")
-    print("\n".join(tuning_lines))
-    out = args.protocol / "subspaces" / "source_reading.json"
+        "| tuning run ahead | Mann-Whitney p (two-sided) |",
+        "|---|---|---|---|---|---|",
+        *tuning_lines,
+    ]
+    out = protocol / "subspaces" / "source_reading.json"
     atomic_write_json(out, result)
-    print(out)
-
-
-if __name__ == "__main__":
-    main()
+    return result, "\n".join(lines)

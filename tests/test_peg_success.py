@@ -1,19 +1,19 @@
-"""scripts/peg_success_map.py: where on the table a Peg policy succeeds."""
+"""`pved analyze peg-success`: where on the table a Peg policy succeeds."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
 
 import pytest
 
+from pved.analysis import peg_success
+
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "scripts" / "peg_success_map.py"
+PVED = [sys.executable, "-m", "pved", "analyze", "peg-success"]
 JACO_PEG = ROOT / "src" / "pved" / "pretrained" / "jaco_peg_seed0.pt"
 
 
@@ -36,20 +36,12 @@ def stages(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return runs
 
 
-def _script() -> Any:
-    spec = importlib.util.spec_from_file_location("peg_success_map", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_the_source_policy_follows_every_hole_of_the_grid(tmp_path: Path) -> None:
     # the shipped Jaco policy solves Peg everywhere: its tip must end on each grid hole's
     # axis, which it can only do if every copy was given its own hole
     out = tmp_path / "map.json"
     done = subprocess.run(
-        [sys.executable, str(SCRIPT), str(JACO_PEG), "--agent", "jaco", "--grid", "3",
+        [*PVED, str(JACO_PEG), "--agent", "jaco", "--grid", "3",
          "--copies", "2", "--json", str(out)],
         capture_output=True, text=True,
     )  # fmt: skip
@@ -66,15 +58,15 @@ def test_the_source_policy_follows_every_hole_of_the_grid(tmp_path: Path) -> Non
 
 def test_a_policy_for_another_agent_is_a_one_line_error(tmp_path: Path) -> None:
     done = subprocess.run(
-        [sys.executable, str(SCRIPT), str(JACO_PEG), "--agent", "fetch4", "--json",
+        [*PVED, str(JACO_PEG), "--agent", "fetch4", "--json",
          str(tmp_path / "map.json")],
         capture_output=True, text=True,
     )  # fmt: skip
-    assert done.returncode == 1
+    assert done.returncode == 2 and done.stderr.startswith("pved: error:")
     assert done.stderr.count("\n") == 1 and "takes 30 observations" in done.stderr
     assert not (tmp_path / "map.json").exists()
     with pytest.raises(Exception, match="unknown agent 'ant'"):
-        _script().success_map(JACO_PEG, "ant", 3, 1, 0)
+        peg_success.success_map(JACO_PEG, "ant", 3, 1, 0)
 
 
 def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(
@@ -102,7 +94,7 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(
         if name != "ppo/seed20000":
             (run / "result.json").write_text("{}")
     done = subprocess.run(
-        [sys.executable, str(SCRIPT), str(protocol), "--grid", "2", "--copies", "1"],
+        [*PVED, str(protocol), "--grid", "2", "--copies", "1"],
         capture_output=True, text=True,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -118,13 +110,12 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(
     for stage in ("model/pved/seed0", "bank/Jaco-Peg/seed0"):
         shutil.copytree(stages / "jaco-fetch" / stage, protocol / "runs" / "jaco-fetch" / stage)
     (protocol / "selection.json").write_text(json.dumps({"jaco-fetch": {"pved": {"init": 0}}}))
-    module = _script()
-    assert module.main([str(protocol), "--grid", "2", "--copies", "1"]) == 0
+    peg_success.peg_success(protocol, grid=2, copies=1)
     summary = json.loads((protocol / "subspaces" / "peg_success.json").read_text())
     assert summary["shaping_measured_under"] == "pved init 0, source-0 bank"
-    shaping = module.load_shaping(stages / "jaco-fetch/model/pved/seed0",
+    shaping = peg_success.load_shaping(stages / "jaco-fetch/model/pved/seed0",
                                   stages / "jaco-fetch/bank/Jaco-Peg/seed0")  # fmt: skip
-    alone = module.success_map(
+    alone = peg_success.success_map(
         transfer / "pved-beta0.001-init0-src0/seed20000/policy.pt", "fetch4", 2, 1, 0, shaping
     )
     assert summary["methods"]["pved"]["shaping_D_mean_median"] == pytest.approx(
@@ -133,10 +124,8 @@ def test_a_protocol_is_mapped_by_method_from_its_evaluation_runs(
     # a directory of another pair is refused in one line
     record["pairs"] = ["walker-hopper"]
     (protocol / "protocol.json").write_text(json.dumps(record))
-    refused = subprocess.run(
-        [sys.executable, str(SCRIPT), str(protocol)], capture_output=True, text=True
-    )
-    assert refused.returncode == 1 and "has no jaco-fetch runs" in refused.stderr
+    refused = subprocess.run([*PVED, str(protocol)], capture_output=True, text=True)
+    assert refused.returncode == 2 and "has no jaco-fetch runs" in refused.stderr
 
 
 def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: Path) -> None:
@@ -155,9 +144,8 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
     bank_dir = stages / "jaco-fetch/bank/Jaco-Peg/seed0"
     policy_path = ROOT / "src" / "pved" / "pretrained" / "fetch4_reach_seed0.pt"
 
-    module = _script()
-    shaping = module.load_shaping(model_dir, bank_dir)
-    result = module.success_map(policy_path, "fetch4", 2, 1, 7, shaping)
+    shaping = peg_success.load_shaping(model_dir, bank_dir)
+    result = peg_success.success_map(policy_path, "fetch4", 2, 1, 7, shaping)
 
     holes = np.array([(x, y) for y in result["hole_y"] for x in result["hole_x"]])
     model, bank = load_model(model_dir / "model.pt"), load_bank(bank_dir / "bank.npz")
@@ -216,7 +204,7 @@ def test_eq10_distance_along_the_trajectories_is_the_transfer_runs_term(stages: 
             assert by_height[band]["D_median"] is None
     # the two inputs go together
     done = subprocess.run(
-        [sys.executable, str(SCRIPT), str(policy_path), "--shaping-model", str(model_dir)],
+        [*PVED, str(policy_path), "--shaping-model", str(model_dir)],
         capture_output=True, text=True,
     )  # fmt: skip
-    assert done.returncode == 1 and "--shaping-model and --bank go together" in done.stderr
+    assert done.returncode == 2 and "--shaping-model and --bank go together" in done.stderr

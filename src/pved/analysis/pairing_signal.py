@@ -13,45 +13,42 @@ two things, and this script measures each for a finished ``pved protocol`` direc
 2. **What the codes hold.** For each selected Gaussian-c model, the mean KL of each
    encoder's shared posterior from the N(0, I) prior (nats: how much the code says about
    its step; near 0 means it sits on the prior whatever the input), and D of Eq. 10 on
-   matched and shuffled training pairs (``scripts/shaping_scale.py``). Where the protocol
+   matched and shuffled training pairs (:mod:`pved.analysis.shaping_scale`). Where the protocol
    kept its first source bank (the source's steps on the target task, which the transfer
    runs' Eq. 10 term draws from), the same KL for the bank's steps and D between a bank
    step and an unrelated training target step: how far the target task takes the source's
    codes from the pairs the model was trained on.
 
-``--alpha3 A [A ...]`` refits PVED on the same dataset with the consistency weight α3 of
-Eq. 9 set to each value (the selected model's config, seed and epochs otherwise) and
+``alpha3`` (``--alpha3 A [A ...]``) refits PVED on the same dataset with the consistency
+weight α3 of Eq. 9 set to each value (the selected model's config, seed and epochs otherwise) and
 measures the refits the same way, to see whether the weight, rather than the data,
 holds the codes apart or on the prior. The refits are written under
-``PROTOCOL_DIR/subspaces/pairing_signal/`` and reused when the script is run again.
+``PROTOCOL_DIR/subspaces/pairing_signal/`` and reused when the analysis is run again.
 
-    .venv/bin/python scripts/pairing_signal.py reports/humanoid-ant-quick --alpha3 1 0.1
+    pved analyze pairing-signal reports/humanoid-ant-quick --alpha3 1 0.1
 
-Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``. With
-``--datasets A.npz B.npz [--first-episodes N]`` instead, it prints only the first
-measure for each dataset (e.g. the same episodes under two alignments) and writes
-nothing; ``--model M.pt [--bank B.npz]`` adds the second for one model on each dataset.
-``--repair`` adds, for each dataset, the first measure after re-pairing its rows within
-each episode (:data:`REPAIRINGS`): the offline check of pairing by gait phase, with its
-two controls (docs/decisions.md, "Pairing by gait phase").
+Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/pairing_signal.json``
+(:func:`protocol_pairing_signal`). With ``--datasets A.npz B.npz [--first-episodes N]``
+instead (:func:`compare_datasets`), it prints only the first measure for each dataset
+(e.g. the same episodes under two alignments) and writes nothing; ``--model M.pt [--bank
+B.npz]`` adds the second for one model on each dataset. ``--repair`` adds, for each
+dataset, the first measure after re-pairing its rows within each episode
+(:data:`REPAIRINGS`): the offline check of pairing by gait phase, with its two controls
+(docs/decisions.md, "Pairing by gait phase").
 """
 
 from __future__ import annotations
 
-import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
-
-# isort: split
-import argparse
 import dataclasses
-import json
-import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from shaping_scale import distance_stats, matched_and_shuffled
 
+from pved.analysis.claims import load_summary
+from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.config import get_preset
 from pved.errors import PvedError
 from pved.experiments.stages import default_dataset_path, default_model_path
@@ -226,12 +223,12 @@ def compare_datasets(
     model_path: Path | None = None,
     bank_path: Path | None = None,
     repair: bool = False,
-) -> None:
-    """Print the pairing's R² (:func:`pairing_r2`) of each paired dataset, e.g. the same
+) -> str:
+    """The pairing's R² (:func:`pairing_r2`) of each paired dataset, e.g. the same
     episodes collected under two alignments, restricted to its first episodes if given;
     with ``repair``, also after each of :data:`REPAIRINGS`; with ``model_path``, also that
     model's :func:`code_information` on each dataset (and on the source bank at
-    ``bank_path``, if given)."""
+    ``bank_path``, if given), as Markdown tables."""
     r2_rows, code_rows = [], []
     model = None if model_path is None else load_model(model_path).eval()
     bank = None if bank_path is None else bank_rows(bank_path).astype(np.float32)
@@ -258,14 +255,15 @@ def compare_datasets(
         if model is not None:
             info = code_information(model, x_s[keep], x_t[keep], code_rows_wanted, seed, bank)
             code_rows.append(_code_row(str(path), str(model_path), info))
-    # printed once every input has been read, so a bad one leaves no half table
-    print("| dataset | alignment | rows | R² source → target | target → source | shuffled |")
-    print("|---|---|---|---|---|---|")
-    print("\n".join(r2_rows))
+    # returned once every input has been read, so a bad one leaves no half table
+    lines = [
+        "| dataset | alignment | rows | R² source → target | target → source | shuffled |",
+        "|---|---|---|---|---|---|",
+        *r2_rows,
+    ]
     if code_rows:
-        print()
-        print(CODE_HEADER.format(what="dataset"))
-        print("\n".join(code_rows))
+        lines += ["", CODE_HEADER.format(what="dataset"), *code_rows]
+    return "\n".join(lines)
 
 
 CODE_HEADER = (
@@ -291,81 +289,31 @@ def _code_row(where: str, name: str, info: dict[str, Any]) -> str:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "protocol", type=Path, nargs="?", help="a finished `pved protocol` output directory"
-    )
-    parser.add_argument(
-        "--datasets",
-        type=Path,
-        nargs="+",
-        default=[],
-        help="instead of a protocol: only the pairing's R², of each of these paired datasets",
-    )
-    parser.add_argument(
-        "--first-episodes", type=int, help="with --datasets: only episodes 0..N-1 of each"
-    )
-    parser.add_argument(
-        "--model", type=Path, help="with --datasets: also this model's codes on each dataset"
-    )
-    parser.add_argument(
-        "--bank", type=Path, help="with --model: the source bank on the target task"
-    )
-    parser.add_argument(
-        "--repair",
-        action="store_true",
-        help="with --datasets: also the R² after re-pairing rows by phase, and two controls",
-    )
-    parser.add_argument("--rows", type=int, default=100_000, help="paired rows for the R²")
-    parser.add_argument("--code-rows", type=int, default=20_000, help="rows for KLs and D")
-    parser.add_argument("--alpha3", type=float, nargs="*", default=[], help="refit PVED at these")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    if not args.datasets and (
-        args.model or args.bank or args.repair or args.first_episodes is not None
-    ):
-        parser.error("--model, --bank, --repair and --first-episodes go with --datasets")
-    if args.bank and not args.model:
-        parser.error("--bank needs --model")
-    try:
-        run(args, parser)
-    except PvedError as exc:  # a foreign or corrupt dataset, model or bank: one line
-        sys.exit(f"pairing_signal: {exc}")
+def protocol_pairing_signal(
+    protocol: Path,
+    rows: int = 100_000,
+    code_rows: int = 20_000,
+    alpha3: Sequence[float] = (),
+    seed: int = 0,
+) -> tuple[dict[str, Any], str]:
+    """Both measures of the module docstring for every pair of the finished protocol
+    directory ``protocol``: the pairing's R² on ``rows`` paired rows, and the codes of each
+    selected model (and of PVED refitted at each ``alpha3``) on ``code_rows`` rows.
 
-
-def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
-    """The measurements :func:`main` parsed the arguments for."""
-    if args.datasets:
-        compare_datasets(
-            args.datasets,
-            args.first_episodes,
-            args.rows,
-            args.code_rows,
-            args.seed,
-            args.model,
-            args.bank,
-            args.repair,
-        )
-        return
-    if args.protocol is None:
-        parser.error("give a protocol directory or --datasets")
-
-    summary_file = args.protocol / "summary.json"
-    if not summary_file.is_file():
-        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
-    summary = json.loads(summary_file.read_text())
-    runs_root = args.protocol / "runs"
-    result: dict[str, Any] = {"rows": args.rows, "code_rows": args.code_rows, "pairs": {}}
-    pairing_rows, code_rows = [], []
+    Writes ``protocol/subspaces/pairing_signal.json`` and returns its content with the
+    tables as Markdown; a directory that is no finished protocol, or lacks the paired
+    dataset or a selected model, raises :class:`PvedError`."""
+    summary = load_summary(protocol)
+    runs_root = protocol / "runs"
+    result: dict[str, Any] = {"rows": rows, "code_rows": code_rows, "pairs": {}}
+    pairing_rows, code_table = [], []
     for pair, entry in summary["pairs"].items():
         dataset_path = default_dataset_path(pair, runs_root)
         if not dataset_path.is_file():
-            sys.exit(f"{dataset_path}: the pair's paired dataset is not in this directory")
+            raise PvedError(f"{dataset_path}: the pair's paired dataset is not in this directory")
         dataset = load_dataset(dataset_path)
         x_s, x_t = dataset.model_inputs()
-        r2 = pairing_r2(x_s, x_t, dataset.episode, args.rows, args.seed)
+        r2 = pairing_r2(x_s, x_t, dataset.episode, rows, seed)
         pair_result: dict[str, Any] = {"pairing_r2": r2, "models": {}}
         pairing_rows.append(
             f"| {pair} | {r2['source_to_target']:.3f} | {r2['target_to_source']:.3f} | "
@@ -378,37 +326,35 @@ def run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
                 continue
             path = default_model_path(pair, method, runs_root, seed=init)
             if not path.is_file():
-                sys.exit(f"{path}: the selected model is not in this directory")
+                raise PvedError(f"{path}: the selected model is not in this directory")
             models[f"{method} (init {init})"] = load_model(path).eval()
         pved_name = f"pved (init {entry['methods'].get('pved', {}).get('init')})"
-        for alpha3 in args.alpha3:
+        for weight in alpha3:
             if pved_name not in models:
-                sys.exit(f"{args.protocol}: no selected pved model on {pair} to refit")
+                raise PvedError(f"{protocol}: no selected pved model on {pair} to refit")
             selected_pved = models[pved_name]
-            out = args.protocol / "subspaces" / "pairing_signal" / pair / f"pved-alpha3-{alpha3:g}"
-            models[f"{pved_name}, α3 = {alpha3:g}"] = refit_alpha3(
-                selected_pved, x_s, x_t, dataset.state_dims, alpha3, out / "model.pt"
+            out = protocol / "subspaces" / "pairing_signal" / pair / f"pved-alpha3-{weight:g}"
+            models[f"{pved_name}, α3 = {weight:g}"] = refit_alpha3(
+                selected_pved, x_s, x_t, dataset.state_dims, weight, out / "model.pt"
             )
         preset = get_preset(pair)
         bank_name = f"{preset.source_agent}-{preset.target_task}"
         bank_path = run_path(runs_root, pair, "bank", bank_name, 0) / "bank.npz"
         bank = bank_rows(bank_path).astype(np.float32) if bank_path.is_file() else None
         for name, model in models.items():
-            info = code_information(model, x_s, x_t, args.code_rows, args.seed, bank)
+            info = code_information(model, x_s, x_t, code_rows, seed, bank)
             pair_result["models"][name] = info
-            code_rows.append(_code_row(pair, name, info))
+            code_table.append(_code_row(pair, name, info))
         result["pairs"][pair] = pair_result
-    print("| pair | R² source → target | target → source | source → shuffled target |")
-    print("|---|---|---|---|")
-    print("\n".join(pairing_rows))
-    print()
-    print(CODE_HEADER.format(what="pair"))
-    print("\n".join(code_rows))
-    out_json = args.protocol / "subspaces" / "pairing_signal.json"
+    lines = [
+        "| pair | R² source → target | target → source | source → shuffled target |",
+        "|---|---|---|---|",
+        *pairing_rows,
+        "",
+        CODE_HEADER.format(what="pair"),
+        *code_table,
+    ]
+    out_json = protocol / "subspaces" / "pairing_signal.json"
     out_json.parent.mkdir(exist_ok=True)
     atomic_write_json(out_json, result)
-    print(out_json)
-
-
-if __name__ == "__main__":
-    main()
+    return result, "\n".join(lines)

@@ -30,9 +30,8 @@ It also measures D along the same steps against the source's episode at the hole
 reflected through the box's centre: a term that knows where the hole is charges a
 policy that follows the hole less at its own hole than at one 6 cm or more away.
 
-    .venv/bin/python scripts/peg_success_map.py RUN_DIR_OR_POLICY [--agent fetch4]
-        [--grid 11] [--copies 8] [--seed 0] [--json OUT.json]
-        [--shaping-model MODEL_RUN_DIR --bank BANK_RUN_DIR]
+    pved analyze peg-success RUN_DIR_OR_POLICY [--agent fetch4] [--grid 11] [--copies 8]
+        [--seed 0] [--json OUT.json] [--shaping-model MODEL_RUN_DIR --bank BANK_RUN_DIR]
 
 Prints the map (rows: hole y from high to low; columns: hole x from low to high) and the
 summary; ``--json`` also writes them, atomically. Given a jaco-fetch ``pved protocol``
@@ -40,16 +39,12 @@ directory instead, it maps every evaluation run that kept its policy (about 10 s
 and prints one row per method, D measured under PVED's selected model and the source-0
 bank for every method's runs alike (where ``selection.json`` has chosen it); the runs
 and the table go to ``PROTOCOL_DIR/subspaces/peg_success.json`` (or ``--json``).
+:func:`peg_success` does either.
 """
 
 from __future__ import annotations
 
-import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
-
-# isort: split
-import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -379,43 +374,34 @@ def render_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "policy",
-        type=Path,
-        help="policy.pt, the run directory holding it, or a jaco-fetch protocol directory",
-    )
-    parser.add_argument("--agent", default="fetch4", help="fetch4 or jaco")
-    parser.add_argument("--grid", type=int, default=11)
-    parser.add_argument("--copies", type=int, default=8)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, default=None)
-    parser.add_argument("--shaping-model", type=Path, default=None, help="model.pt or its run")
-    parser.add_argument("--bank", type=Path, default=None, help="bank.npz or its run")
-    args = parser.parse_args(argv)
-    try:
-        if (args.policy / "protocol.json").is_file():
-            summary = protocol_summary(args.policy, args.grid, args.copies, args.seed)
-            out = args.json or args.policy / "subspaces" / "peg_success.json"
-            print(render_summary(summary))
-            atomic_write_json(out, summary)
-            return 0
-        path = run_file(args.policy, "policy.pt", "policy")
-        if (args.shaping_model is None) != (args.bank is None):
-            raise PvedError("--shaping-model and --bank go together")
-        shaping = (
-            load_shaping(args.shaping_model, args.bank) if args.shaping_model is not None else None
-        )
-        result = success_map(path, args.agent, args.grid, args.copies, args.seed, shaping)
-    except PvedError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    print(render(result))
-    if args.json is not None:
-        atomic_write_json(args.json, result)
-    return 0
+def peg_success(
+    path: Path,
+    agent: str = "fetch4",
+    grid: int = 11,
+    copies: int = 8,
+    seed: int = 0,
+    json_out: Path | None = None,
+    shaping_model: Path | None = None,
+    bank: Path | None = None,
+) -> tuple[dict[str, Any], str]:
+    """The success map of a policy (``path``: ``policy.pt`` or its run directory), or of
+    every evaluation run of a jaco-fetch protocol directory (``path`` holding
+    ``protocol.json``), and its text (:func:`render`, :func:`render_summary`).
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    A protocol's summary is written to ``json_out`` (default
+    ``path/subspaces/peg_success.json``); a policy's map only where ``json_out`` is given.
+    ``shaping_model`` and ``bank`` (together, a policy only) add Eq. 10's distance."""
+    if (path / "protocol.json").is_file():
+        summary = protocol_summary(path, grid, copies, seed)
+        atomic_write_json(json_out or path / "subspaces" / "peg_success.json", summary)
+        return summary, render_summary(summary)
+    policy = run_file(path, "policy.pt", "policy")
+    if (shaping_model is None) != (bank is None):
+        raise PvedError("--shaping-model and --bank go together")
+    shaping = None
+    if shaping_model is not None and bank is not None:
+        shaping = load_shaping(shaping_model, bank)
+    result = success_map(policy, agent, grid, copies, seed, shaping)
+    if json_out is not None:
+        atomic_write_json(json_out, result)
+    return result, render(result)

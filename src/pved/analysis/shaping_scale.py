@@ -26,7 +26,7 @@ The same rows once more, each target step against the source step at the same st
 another training episode (another task draw: another reach target, another slope):
 how often D is lower against its own source step than against that one. Near 1, the
 code tells this episode's task from another's at the same moment; near 0.5, the term
-could only say when to move, not where (compare `scripts/peg_success_map.py`'s own
+could only say when to move, not where (compare :mod:`pved.analysis.peg_success`'s own
 hole against the reflected one, on the target task).
 
 A second table asks whether D tells a good target from a bad one: for each shaped
@@ -46,19 +46,15 @@ reach the codes the source bank asks for, and the term steers it; where D ends a
 same level whatever β (ρ(β, D last) near 0 while the score falls), the target cannot get
 nearer, and a larger weight only makes the term a larger cost.
 
-    .venv/bin/python scripts/shaping_scale.py reports/jaco-fetch-quick
+    pved analyze shaping-scale reports/jaco-fetch-quick
 
-Prints a Markdown table and writes ``PROTOCOL_DIR/subspaces/shaping_scale.json``.
+Prints Markdown tables and writes ``PROTOCOL_DIR/subspaces/shaping_scale.json``
+(:func:`protocol_shaping_scale`).
 """
 
 from __future__ import annotations
 
-import pved  # noqa: F401  (before numpy loads: it pins OpenBLAS's kernel, pved.blas)
-
-# isort: split
-import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -66,8 +62,10 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
+from pved.analysis.claims import load_summary
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
+from pved.errors import PvedError
 from pved.experiments.protocol import transfer_run_name
 from pved.experiments.stages import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
@@ -269,52 +267,51 @@ def spearman_by_seed(
     return rho, [float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5))]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
-    parser.add_argument("--rows", type=int, default=20_000, help="training pairs sampled")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+def protocol_shaping_scale(
+    protocol: Path, rows: int = 20_000, seed: int = 0
+) -> tuple[dict[str, Any], str]:
+    """The three tables of the module docstring for every shaped method of the finished
+    protocol directory ``protocol``, on ``rows`` training pairs drawn with ``seed``.
 
-    summary_file = args.protocol / "summary.json"
-    if not summary_file.is_file():
-        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
-    summary = json.loads(summary_file.read_text())
-    runs_root = args.protocol / "runs"
-    result: dict[str, Any] = {"rows": args.rows, "seed": args.seed, "pairs": {}}
-    print(
+    Writes ``protocol/subspaces/shaping_scale.json`` and returns its content with the
+    tables as Markdown; a directory that is no finished protocol, or lacks the paired
+    dataset or a selected model, raises :class:`PvedError`."""
+    summary = load_summary(protocol)
+    runs_root = protocol / "runs"
+    result: dict[str, Any] = {"rows": rows, "seed": seed, "pairs": {}}
+    lines = [
         "| pair | method | init | D matched: median / mean | D shuffled: median / mean "
         "| D, target action swapped: median | D, target state swapped: median "
-        "| D, another episode's source step at the same step: median (own lower in) |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
+        "| D, another episode's source step at the same step: median (own lower in) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for pair, entry in summary["pairs"].items():
         dataset = default_dataset_path(pair, runs_root)
         if not dataset.is_file():
-            sys.exit(f"{dataset}: the pair's paired dataset is not in this directory")
+            raise PvedError(f"{dataset}: the pair's paired dataset is not in this directory")
         for method, state in entry["methods"].items():
             init = state.get("init")
             if init is None:  # plain PPO and the oracle have no model
                 continue
             model = default_model_path(pair, method, runs_root, seed=init)
             if not model.is_file():
-                sys.exit(f"{model}: the selected model is not in this directory")
-            scale = shaping_scale(model, dataset, args.rows, args.seed)
+                raise PvedError(f"{model}: the selected model is not in this directory")
+            scale = shaping_scale(model, dataset, rows, seed)
             result["pairs"].setdefault(pair, {})[method] = {"init": init, **scale}
             m, s = scale["matched"], scale["shuffled"]
-            print(
+            lines.append(
                 f"| {pair} | {method} | {init} | {m['q50']:.3g} / {m['mean']:.3g} | "
                 f"{s['q50']:.3g} / {s['mean']:.3g} | {scale['action_swapped']['q50']:.3g} | "
                 f"{scale['state_swapped']['q50']:.3g} | "
                 f"{scale['other_episode_same_step']['q50']:.3g} "
                 f"({scale['own_lower_share']:.3f}) |"
             )
-    print()
-    print(
+    lines += [
+        "",
         "| pair | method | runs | D at the last rollout: min / median / max "
-        "| best run's D | ρ(D, score) |"
-    )
-    print("|---|---|---|---|---|---|")
+        "| best run's D | ρ(D, score) |",
+        "|---|---|---|---|---|---|",
+    ]
     for pair, entry in summary["pairs"].items():
         metric = entry["metric"]
         for method, state in entry["methods"].items():
@@ -330,18 +327,18 @@ def main() -> None:
             if ends["spearman_rho_ci"] is not None:
                 lo, hi = ends["spearman_rho_ci"]
                 rho += f" [{lo:.2f}, {hi:.2f}]"
-            print(
+            lines.append(
                 f"| {pair} | {method} | {len(d_end)} | {d_end.min():.3g} / "
                 f"{np.median(d_end):.3g} / {d_end.max():.3g} | {best['d_end']:.3g} "
                 f"({metric} {best[metric]:.3g}) | {rho} |"
             )
-    print()
-    print("| pair | method | β | runs | D first → last rollout (medians) | fall | score |")
-    print("|---|---|---|---|---|---|---|")
-    selection = json.loads((args.protocol / "selection.json").read_text())
-    tuning_seeds = json.loads((args.protocol / "protocol.json").read_text())["budget"][
-        "tuning_seeds"
+    lines += [
+        "",
+        "| pair | method | β | runs | D first → last rollout (medians) | fall | score |",
+        "|---|---|---|---|---|---|---|",
     ]
+    selection = json.loads((protocol / "selection.json").read_text())
+    tuning_seeds = json.loads((protocol / "protocol.json").read_text())["budget"]["tuning_seeds"]
     for pair, methods in result["pairs"].items():
         for method, scale in methods.items():
             search = distance_by_beta(
@@ -352,20 +349,16 @@ def main() -> None:
             )
             scale["by_beta"] = search
             for row in search["betas"]:
-                print(
+                lines.append(
                     f"| {pair} | {method} | {row['beta']:g} | {row['runs']} | "
                     f"{row['d_first']:.3g} → {row['d_last']:.3g} | {row['fall']:.3g}x | "
                     f"{row['score']:.3g} |"
                 )
             if search["rho_beta_d_last"] is not None:
-                print(
+                lines.append(
                     f"| {pair} | {method} | ρ(β, D last) | | {search['rho_beta_d_last']:.2f} | | |"
                 )
-    out = args.protocol / "subspaces" / "shaping_scale.json"
+    out = protocol / "subspaces" / "shaping_scale.json"
     out.parent.mkdir(exist_ok=True)
     atomic_write_json(out, result)
-    print(out)
-
-
-if __name__ == "__main__":
-    main()
+    return result, "\n".join(lines)

@@ -3,18 +3,18 @@
 The paper's section IV.C looks at one transferred target beside its source: the t-SNE of
 both agents' shared and individual means on the target task, the frames nearest to marked
 points of the shared embedding, and (our addition) Theorem 1's bound on the same rollouts.
-This script picks what the protocol selected, PVED's beta and model initialisation, and
+This analysis picks what the protocol selected, PVED's beta and model initialisation, and
 among PVED's evaluation runs the one with the best final score (a target that learned the
-task, as the paper shows), then runs the three verbs on it:
+task, as the paper shows), then does on it what these three verbs do:
 
     pved tsne   --model <selected init> --target-policy <that run> --source-policy <its source>
     pved bound  (the same three) > bound.txt
     pved report --pair PAIR PROTOCOL_DIR tsne/ bound.txt --out report.html
 
-    .venv/bin/python scripts/subspaces_report.py reports/walker-hopper-quick
+    pved analyze subspaces reports/walker-hopper-quick
 
-Outputs go to ``PROTOCOL_DIR/subspaces/`` (``make publish`` copies its figures and
-numbers, not the HTML, into ``docs/protocol/``).
+Outputs go to ``PROTOCOL_DIR/subspaces/`` (:func:`subspaces_report`; ``make publish``
+copies its figures and numbers, not the HTML, into ``docs/protocol/``).
 
 A protocol restored from its committed summary on another machine has that run without
 its policy (``pved archive``). Then the run is made again from its job in the plan, the
@@ -26,20 +26,18 @@ the new run has finished, and put back if it fails.
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import io
-import json
 import re
 import shutil
-import sys
 from pathlib import Path
 from typing import Any
 
-from pved.cli import main as pved
+from pved.analysis.claims import load_summary
+from pved.analysis.pair_report import build_pair_report
 from pved.config import get_preset
+from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results, indexed_policy
 from pved.experiments.runner import Job
+from pved.experiments.stages import analyze_subspaces, bound
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
 _RUN_KEY = re.compile(
@@ -55,7 +53,7 @@ def pick_run(summary: dict[str, Any], pair: str) -> dict[str, Any]:
         r for r in entry["methods"].get("pved", {}).get("runs", []) if r.get(metric) is not None
     ]
     if not runs:
-        raise SystemExit(f"no finished PVED evaluation run of {pair} in the summary")
+        raise PvedError(f"no finished PVED evaluation run of {pair} in the summary")
     return max(runs, key=lambda r: float(r[metric]))
 
 
@@ -77,7 +75,7 @@ def remake_policy(protocol: Path, key: str, metric: str, recorded: float) -> Non
     jobs = {job.key: job for job in plan.expand(_finished_results(plan))}
     job = jobs.get(key)
     if job is None or job.run_dir is None:
-        sys.exit(f"{protocol}: {key} is not a run of its plan")
+        raise PvedError(f"{protocol}: {key} is not a run of its plan")
     print(f"{key}: restored without its policy; making it again", flush=True)
     aside = job.run_dir.with_name(job.run_dir.name + ".restored")
     job.run_dir.rename(aside)
@@ -91,80 +89,54 @@ def remake_policy(protocol: Path, key: str, metric: str, recorded: float) -> Non
     print(f"{key}: final {metric} {result[f'final/{metric}']:.4f}, recorded {recorded:.4f}")
 
 
-def run(cmd: list[str], stdout: Path | None = None) -> None:
-    """One ``pved`` verb in this process; a failure stops the script with its exit code."""
-    print("pved " + " ".join(cmd), flush=True)
-    buffer = io.StringIO()
-    with contextlib.redirect_stdout(buffer) if stdout else contextlib.nullcontext():
-        code = pved(cmd)
-    if code:
-        raise SystemExit(code)
-    if stdout:
-        atomic_write_bytes(stdout, buffer.getvalue().encode())
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("protocol", type=Path, help="a finished `pved protocol` output directory")
-    parser.add_argument("--pair", help="the pair (default: the directory's only one)")
-    parser.add_argument("--episodes", type=int, default=4, help="rollouts per agent")
-    parser.add_argument("--videos", action="store_true", help="embed one rollout per method")
-    args = parser.parse_args()
-
-    summary_file = args.protocol / "summary.json"
-    if not summary_file.is_file():
-        sys.exit(f"{args.protocol}: no summary.json (not a finished `pved protocol` output)")
-    summary = json.loads(summary_file.read_text())
+def subspaces_report(
+    protocol: Path, pair: str | None = None, episodes: int = 4, videos: bool = False
+) -> dict[str, Any]:
+    """The report of the module docstring for ``pair`` (default: the directory's only one)
+    of the finished protocol directory ``protocol``, into ``protocol/subspaces/``:
+    ``tsne/``, ``bound.txt``, ``report.html`` (with ``videos``: one rollout per method
+    embedded) and ``chosen.json``, whose content is returned. ``episodes``: rollouts per
+    agent."""
+    summary = load_summary(protocol)
     pairs = list(summary["pairs"])
-    pair: str | None = args.pair or (pairs[0] if len(pairs) == 1 else None)
-    if pair is None or pair not in pairs:
-        sys.exit(f"{args.protocol} holds pairs {pairs}; name one with --pair")
-    chosen = pick_run(summary, pair)
+    name = pair or (pairs[0] if len(pairs) == 1 else None)
+    if name is None or name not in pairs:
+        raise PvedError(f"{protocol} holds pairs {pairs}; name one with --pair")
+    chosen = pick_run(summary, name)
     match = _RUN_KEY.match(chosen["key"])
     if match is None:
-        sys.exit(f"unexpected run key {chosen['key']!r}")
+        raise PvedError(f"unexpected run key {chosen['key']!r}")
     init, src = int(match["init"]), int(match["src"])
-    preset = get_preset(pair)
-    runs_root = args.protocol / "runs"
-    model = run_path(runs_root, pair, "model", "pved", init)
+    preset = get_preset(name)
+    runs_root = protocol / "runs"
+    model = run_path(runs_root, name, "model", "pved", init)
     source, source_seed, _ = indexed_policy(preset.source_agent, preset.target_task, src, runs_root)
     # under DIR/runs, not the absolute path in the summary: a protocol directory copied
     # back from another machine still works
     target = runs_root / chosen["key"]
+    metric = summary["pairs"][name]["metric"]
     if not (target / "result.json").is_file():
-        sys.exit(f"{target}: no result.json (the run's files are not in this directory)")
+        raise PvedError(f"{target}: no result.json (the run's files are not in this directory)")
     if not (target / "policy.pt").is_file():
-        metric = summary["pairs"][pair]["metric"]
-        remake_policy(args.protocol, chosen["key"], metric, float(chosen[metric]))
+        remake_policy(protocol, chosen["key"], metric, float(chosen[metric]))
 
-    out = args.protocol / "subspaces"
+    out = protocol / "subspaces"
     out.mkdir(exist_ok=True)
-    common = ["--pair", pair, "--model", str(model), "--target-policy", str(target)]
-    common += ["--source-policy", str(source), "--episodes", str(args.episodes)]
-    run(["tsne", *common, "--out", str(out / "tsne")])
-    run(["bound", *common], stdout=out / "bound.txt")
-    report = [
-        "report",
-        "--pair",
-        pair,
-        str(args.protocol),
-        str(out / "tsne"),
-        str(out / "bound.txt"),
-    ]
-    run([*report, "--out", str(out / "report.html"), *([] if args.videos else ["--no-videos"])])
-    atomic_write_json(
-        out / "chosen.json",
-        {
-            "run": chosen["key"],
-            "final": chosen[summary["pairs"][pair]["metric"]],
-            "metric": summary["pairs"][pair]["metric"],
-            "model": str(model),
-            "source_policy": str(source),
-            "source_seed": source_seed,
-            "episodes": args.episodes,
-        },
+    analyze_subspaces(name, model, target, out / "tsne", source_policy=source, episodes=episodes)
+    # the file `pved bound ... > bound.txt` writes: the summary and a newline
+    theorem = bound(name, model, target, source_policy=source, episodes=episodes)
+    atomic_write_bytes(out / "bound.txt", (theorem["summary"] + "\n").encode())
+    build_pair_report(
+        name, [protocol, out / "tsne", out / "bound.txt"], out / "report.html", videos=videos
     )
-
-
-if __name__ == "__main__":
-    main()
+    record = {
+        "run": chosen["key"],
+        "final": chosen[metric],
+        "metric": metric,
+        "model": str(model),
+        "source_policy": str(source),
+        "source_seed": source_seed,
+        "episodes": episodes,
+    }
+    atomic_write_json(out / "chosen.json", record)
+    return record
