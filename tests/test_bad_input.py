@@ -17,12 +17,14 @@ import numpy as np
 import pytest
 
 from helpers import Interrupt, params_of, run_cli
+from pved.errors import PvedError
 from pved.experiments import stages
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
 from pved.models import load_model, save_model
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy
 from pved.runs import Run
+from pved.transfer.shaping import LatentShaping
 from pved.transfer.source_bank import load_bank, save_bank
 
 # one update of 16 x 128 steps, one evaluation episode: quick wherever a check comes late
@@ -73,6 +75,18 @@ def test_a_negative_nan_or_infinite_beta_is_refused_naming_it(
     bank.write_bytes(b"b")
     spec = stages.transfer_spec("reacher", model_path=model, bank_path=bank, beta=0.0)
     assert spec.beta == 0.0
+
+
+@pytest.mark.parametrize("beta", [-0.1, float("nan"), float("inf")])
+def test_the_shaping_itself_refuses_a_beta_transfer_would_refuse(
+    made: dict[str, Path], beta: float
+) -> None:
+    # what a notebook or a Stable-Baselines3 user builds directly
+    model, bank = load_model(made["model"]), load_bank(made["bank"])
+    indices = model.metadata["robot_state_indices_target"]
+    with pytest.raises(PvedError, match="beta must be a finite number >= 0"):
+        LatentShaping(model, bank, beta, indices)
+    assert LatentShaping(model, bank, 0, indices).beta == 0.0
 
 
 def test_zero_epochs_is_refused_before_a_model_is_written(
