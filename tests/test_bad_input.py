@@ -149,6 +149,7 @@ def _no_work(what: str) -> Any:
          "pved.analysis.compare.compare_runs", "--json"),
         (["claims", "{tmp}", "--out", "{x}"], "pved.analysis.claims.judge_claims", "--out"),
         (["plot", "{tmp}/none", "--out", "{x}/p.png"], None, "--out"),
+        (["plot", "{x}"], None, "DIR"),
         (["protocol", "--pair", "reacher", "--out", "{x}", "--backend", "processes"],
          "pved.experiments.protocol.run_jobs", "--out"),
         (["demo", "--runs", "{x}"], "pved.experiments.demo.collect_pairs", "--runs"),

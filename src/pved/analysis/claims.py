@@ -953,8 +953,8 @@ def write_claims(dirs: Sequence[Path], out: Path | None = None) -> Path:
     atomically (OUT defaults to the first DIR). Returns the path of claims.md."""
     from pved.checks import check_writable
 
-    if out is not None:
-        check_writable("--out", out)
+    if out is not None or dirs:  # where the verdicts go, found before the judging
+        out = check_writable("--out", out if out is not None else dirs[0])
     result = judge_claims(dirs)
     # Imported here: pved.runs imports torch, which judging does not need.
     from pved.runs import atomic_write_bytes, atomic_write_json

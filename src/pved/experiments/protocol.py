@@ -974,6 +974,8 @@ def plot_protocols(dirs: Sequence[Path | str], combined: Path | str | None = Non
 
     if combined is not None:
         check_writable("--out", combined, directory=False)
+    for d in dirs:  # each DIR gets its summary and curves again
+        check_writable("DIR", d)
     written: list[Path] = []
     panels: list[Panel] = []
     for d in dirs:
