@@ -1019,6 +1019,8 @@ def preset_summary(preset: PairPreset) -> dict[str, Any]:
 
 __all__ = [
     "build_bank",
+    "check_bank_for",
+    "check_model_for",
     "collect_pairs",
     "evaluate",
     "np",
