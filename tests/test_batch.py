@@ -186,11 +186,11 @@ def test_a_failed_run_is_reported_and_the_rest_go_on(
         (["export", "--protocol", "{proto}", "--batch", "{proto}"], "exists"),
         (
             ["export", "--protocol", "{proto}", "--batch", "{tmp}/b", "--claim-minutes", "-1"],
-            "--claim-minutes must be at least 0",
+            "--claim-minutes must be a finite number >= 0",
         ),
         (
             ["export", "--protocol", "{proto}", "--batch", "{tmp}/b", "--max-input-mib", "0"],
-            "--max-input-mib must be more than 0",
+            "--max-input-mib must be a finite number > 0",
         ),
         (["release", "--protocol", "{tmp}"], "is not a protocol directory"),
     ],

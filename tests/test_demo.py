@@ -40,9 +40,9 @@ def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("argv", "match"),
     [
-        (["--steps", "-1"], "transfer_steps must be positive, got -1"),
-        (["--jobs", "0"], "jobs must be positive, got 0"),
-        (["--seeds", "-5"], "seeds >= 0, got [-5]"),
+        (["--steps", "-1"], "--steps must be an integer >= 1, got -1"),
+        (["--jobs", "0"], "--jobs must be an integer >= 1, got 0"),
+        (["--seeds", "-5"], "--seeds must be an integer in [0, 4294967295], got -5"),
     ],
 )
 def test_a_bad_demo_budget_is_refused_before_any_stage(

@@ -141,7 +141,7 @@ def test_config_validation() -> None:
         Gupta2017Config(weight_recon_source=float("nan"))
     with pytest.raises(PvedError, match="shared_dim must be >= 1"):
         Gupta2017Config(shared_dim=0)
-    with pytest.raises(PvedError, match="lr must be > 0"):
+    with pytest.raises(PvedError, match="lr must be a finite number > 0"):
         Gupta2017Config(lr=0.0)
     with pytest.raises(PvedError, match="alpha3"):
         PVEDDetSharedConfig(alpha3=-2.0)

@@ -184,7 +184,7 @@ def test_bad_input_is_one_line_and_nonzero(
     one_line_error(capsys, "transfer", "--runs", runs, "--model", "magic",
                    match="unknown model 'magic'")  # fmt: skip
     one_line_error(capsys, "collect-pairs", "--runs", runs, "--align", "warp",
-                   match="unknown alignment 'warp'")  # fmt: skip
+                   match="--align must be one of subsample, time, dtw, phase")  # fmt: skip
     # an input file that is not there, or a directory that is no run of its stage
     one_line_error(capsys, "collect-pairs", "--runs", runs, "--source-policy",
                    tmp_path / "none.pt", match="Reacher3's policy not found")  # fmt: skip

@@ -4,6 +4,7 @@ evaluation, and the batched envs PPO is benchmarked on."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -409,6 +410,60 @@ def test_a_run_killed_before_its_first_checkpoint_starts_over_cleanly(tmp_path: 
     # the records of the killed attempt are gone: each step is logged once
     evals = [r["step"] for r in run.read_metrics() if "eval/score" in r]
     assert evals == [k * n * 32 for k in range(5)]
+
+
+def test_checkpoints_by_wall_time_resume_exactly_and_leave_the_step_schedule(
+    tmp_path: Path,
+) -> None:
+    n = 8
+    per_update = n * 32
+    # no checkpoint by steps within the run: only the clock takes them
+    cfg = toy_config(total_steps=6 * per_update, checkpoint_every=10**9, eval_every=per_update)
+    straight = train_ppo(
+        PointTarget1D(n),
+        cfg,
+        Run(tmp_path / "a", {"c": 1}),
+        progress=False,
+        checkpoint_every_s=None,
+    )
+    assert not list((tmp_path / "a" / "checkpoints").glob("*.pt"))
+
+    # A clock that reads 40 s per update (set as each update's evaluation sees it): with
+    # a minute between checkpoints, one is due after updates 2 and 4.
+    now = [0.0]
+
+    def clock() -> float:
+        return now[0]
+
+    def crash_at(update: int | None) -> Callable[[Policy, int], dict[str, float]]:
+        def evaluate(policy: Policy, steps: int) -> dict[str, float]:
+            now[0] = 40.0 * steps / per_update
+            if steps == (update or -1) * per_update:
+                raise Interrupt
+            return {"score": float(steps)}
+
+        return evaluate
+
+    run = Run(tmp_path / "b", {"c": 1})
+    with pytest.raises(Interrupt):  # killed after update 4, before its checkpoint is taken
+        train_ppo(PointTarget1D(n), cfg, run, eval_fn=crash_at(4), progress=False, clock=clock)
+    state = run.latest_checkpoint()
+    assert state is not None and state["global_step"] == 2 * per_update
+    assert state["next_checkpoint"] == 10**9  # the schedule by steps is left as it was
+    now[0] = 0.0
+    resumed = train_ppo(
+        PointTarget1D(n),
+        cfg,
+        Run(tmp_path / "b", {"c": 1}),
+        eval_fn=crash_at(None),
+        progress=False,
+        clock=clock,
+    )
+    assert np.array_equal(params_of(straight), params_of(resumed))
+    evals = [r["step"] for r in run.read_metrics() if "eval/score" in r]
+    assert evals == [k * per_update for k in range(7)]  # resumed at update 3, each logged once
+    with pytest.raises(PvedError, match="checkpoint_every_s must be a number >= 0, got -1"):
+        train_ppo(PointTarget1D(n), cfg, progress=False, checkpoint_every_s=-1)
 
 
 def test_resume_refuses_other_config(tmp_path: Path) -> None:

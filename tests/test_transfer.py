@@ -211,7 +211,7 @@ def test_the_shaping_options_are_in_the_run_config_only_when_set(tmp_path: Path)
     for option in ({"shaping_start": 10}, {"shaping_form": "log1p"}):
         with pytest.raises(PvedError, match="'ppo' has no shaping term"):
             spec("ppo", **option)
-    with pytest.raises(PvedError, match="shaping start must be >= 0"):
+    with pytest.raises(PvedError, match="--shaping-start must be an integer >= 0, got -5"):
         spec("pved", shaping_start=-5)
     with pytest.raises(PvedError, match="unknown shaping form 'log'"):
         spec("pved", shaping_form="log")

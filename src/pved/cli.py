@@ -13,7 +13,18 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its refusals (a value of the wrong type, a missing or unknown
+    option) as one ``pved: error:`` line and exit status 2, like every other refusal,
+    rather than the usage text and a second line."""
+
+    def error(self, message: str) -> NoReturn:
+        from pved.errors import PvedError
+
+        raise PvedError(f"{message} (see: {self.prog} --help)")
 
 
 def _print_json(obj: Any) -> None:
@@ -44,6 +55,7 @@ def _cmd_train_policy(args: argparse.Namespace) -> None:
         reward=args.reward,
         runs_root=args.runs,
         eval_episodes=args.eval_episodes,
+        checkpoint_every_s=args.checkpoint_seconds,
     )
     print(path)
 
@@ -113,6 +125,7 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
             shaping_start=args.shaping_start,
             shaping_form=args.shaping_form,
             shaping_action=args.shaping_action,
+            checkpoint_every_s=args.checkpoint_seconds,
         )
     )
 
@@ -161,15 +174,14 @@ def _cmd_report(args: argparse.Namespace) -> None:
 def _cmd_demo(args: argparse.Namespace) -> None:
     import dataclasses
 
+    from pved.checks import given, named_options
     from pved.experiments.demo import DemoConfig, run_demo
 
-    cfg = DemoConfig()
-    if args.steps is not None:
-        cfg = dataclasses.replace(cfg, transfer_steps=args.steps)
-    if args.seeds is not None:
-        cfg = dataclasses.replace(cfg, seeds=tuple(args.seeds))
-    if args.jobs is not None:
-        cfg = dataclasses.replace(cfg, jobs=args.jobs)
+    seeds = None if args.seeds is None else tuple(args.seeds)
+    with named_options(transfer_steps="--steps", seeds="--seeds", jobs="--jobs"):
+        cfg = dataclasses.replace(
+            DemoConfig(), **given(transfer_steps=args.steps, seeds=seeds, jobs=args.jobs)
+        )
     out = run_demo(args.runs, args.out, cfg)
     print((out / "results.md").read_text())
     print(f"report: {out.resolve()}")
@@ -194,10 +206,13 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> None:
+    from pved.checks import check_number, check_writable
     from pved.errors import PvedError
     from pved.experiments import batch
 
     if args.action == "export":
+        if args.max_input_mib is not None:  # a number before it is turned into bytes
+            check_number("--max-input-mib", args.max_input_mib, low=0.0, low_open=True)
         keys = batch.export_batch(
             args.protocol,
             args.batch,
@@ -213,6 +228,8 @@ def _cmd_batch(args: argparse.Namespace) -> None:
         released = batch.release_batch(args.protocol, args.batch)
         print(f"{len(released)} runs released")
     elif args.action == "run":
+        if args.pack is not None:  # found before the runs, not after them
+            check_writable("--pack", args.pack)
         log = batch.run_batch(
             args.batch, workers=args.workers, deadline_s=args.deadline_s, start_by_s=args.start_by_s
         )
@@ -426,8 +443,11 @@ def _cmd_analyze(args: argparse.Namespace) -> None:
 
 def _cmd_compare(args: argparse.Namespace) -> None:
     from pved.analysis.compare import compare_runs, format_comparison
+    from pved.checks import check_writable
     from pved.runs import atomic_write_json
 
+    if args.json is not None:
+        check_writable("--json", args.json, directory=False)
     result = compare_runs(args.a, args.b, (args.names[0], args.names[1]))
     if args.json is not None:
         atomic_write_json(args.json, result)
@@ -453,8 +473,21 @@ def build_parser() -> argparse.ArgumentParser:
         for name, preset in sorted(PRESETS.items())
     )
 
-    parser = argparse.ArgumentParser(prog="pved", description=__doc__.splitlines()[0])
+    from pved.rl.ppo import CHECKPOINT_SECONDS
+
+    parser: argparse.ArgumentParser = _Parser(prog="pved", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="verb", required=True)
+
+    def add_checkpoint_seconds(p: argparse.ArgumentParser) -> None:
+        p.add_argument(
+            "--checkpoint-seconds",
+            type=float,
+            default=CHECKPOINT_SECONDS,
+            metavar="S",
+            help="also checkpoint after the update that ends S seconds of wall time after the "
+            "last checkpoint, so that a kill loses at most about that much (0: every update; "
+            "inf: only every checkpoint_every env steps; default: %(default)g)",
+        )
 
     def add(name: str, help_text: str, runs_default: str = "runs") -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -478,6 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--eval-episodes", type=int, help="episodes per evaluation (default: the preset's)"
     )
+    add_checkpoint_seconds(p)
     p.set_defaults(func=_cmd_train_policy)
 
     p = add("collect-pairs", "paired rollouts of both agents on the training task")
@@ -576,6 +610,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the target action Eq. 10 encodes: mean (the policy's mean action, as in the "
         "pairs and the bank; default) or taken (the sampled exploration action)",
     )
+    add_checkpoint_seconds(p)
     p.set_defaults(func=_cmd_transfer)
 
     p = sub.add_parser("evaluate", help="success rate / return of a saved policy")
@@ -943,13 +978,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pved`` console script."""
-    args = build_parser().parse_args(argv)
     import torch
 
     from pved.errors import PvedError
 
     torch.set_num_threads(1)
     try:
+        args = build_parser().parse_args(argv)
         args.func(args)
     except PvedError as exc:
         print(f"pved: error: {exc}", file=sys.stderr)

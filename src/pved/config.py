@@ -12,10 +12,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pved.errors import PvedError
+from pved.checks import check_int, check_number, check_seed
+from pved.errors import OptionError, PvedError
 from pved.models.base import ModelConfig
 from pved.models.pved import PVEDConfig
 from pved.models.registry import model_class
+from pved.pairing.align import ALIGNMENTS
 from pved.rl.ppo import PPOConfig
 
 # Seeds of the paper's protocol (IV.A): tuning and evaluation seeds of the DRL stage.
@@ -42,6 +44,21 @@ class PairingConfig:
     dtw_model: str = "pved"
     dtw_epochs: int | None = None
 
+    def __post_init__(self) -> None:
+        # every value checked here, before a collection starts (checks.py); the message
+        # of an unknown alignment is the one users have always read
+        check_int("episodes", self.episodes, low=1)
+        check_int("num_envs", self.num_envs, low=1)
+        if not isinstance(self.align, str) or self.align not in ALIGNMENTS:
+            raise OptionError("align", self.align, "one of " + ", ".join(ALIGNMENTS))
+        if not isinstance(self.deterministic, bool):
+            raise OptionError("deterministic", self.deterministic, "true or false")
+        check_seed("seed", self.seed)
+        check_int("dtw_rounds", self.dtw_rounds, low=1)
+        model_class(self.dtw_model)
+        if self.dtw_epochs is not None:
+            check_int("dtw_epochs", self.dtw_epochs, low=1)
+
 
 @dataclass(frozen=True)
 class TransferConfig:
@@ -53,6 +70,18 @@ class TransferConfig:
     eval_episodes: int = 100  # per evaluation point during training
     final_eval_episodes: int = 500  # the paper's success-rate measure
     ppo: PPOConfig = field(default_factory=PPOConfig)
+
+    def __post_init__(self) -> None:
+        # β weighs a non-negative distance: a negative β would reward moving away from
+        # the source, and NaN would only surface as a NaN loss after a rollout; β = 0 is
+        # Eq. 10 without its term
+        check_number("beta", self.beta, low=0.0)
+        check_int("bank_episodes", self.bank_episodes, low=1)
+        check_int("eval_every", self.eval_every, low=0)
+        check_int("eval_episodes", self.eval_episodes, low=1)
+        check_int("final_eval_episodes", self.final_eval_episodes, low=1)
+        if not isinstance(self.ppo, PPOConfig):
+            raise OptionError("ppo", self.ppo, "a PPOConfig")
 
 
 # The protocol's beta grid for the methods whose Eq. 10 term is the Euclidean distance

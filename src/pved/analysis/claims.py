@@ -953,6 +953,10 @@ def claims_markdown(result: dict[str, Any]) -> str:
 def write_claims(dirs: Sequence[Path], out: Path | None = None) -> Path:
     """Judge the claims on ``dirs`` and write ``OUT/claims.json`` and ``OUT/claims.md``
     atomically (OUT defaults to the first DIR). Returns the path of claims.md."""
+    from pved.checks import check_writable
+
+    if out is not None or dirs:  # where the verdicts go, found before the judging
+        out = check_writable("--out", out if out is not None else dirs[0])
     result = judge_claims(dirs)
     # Imported here: pved.runs imports torch, which judging does not need.
     from pved.runs import atomic_write_bytes, atomic_write_json

@@ -25,6 +25,7 @@ from typing import Any
 
 from pved import __version__
 from pved.analysis.curves import reach_cell
+from pved.checks import check_writable
 from pved.config import get_preset
 from pved.envs.registry import env_id
 from pved.errors import PvedError
@@ -709,10 +710,11 @@ def build_pair_report(
     get_preset(pair)  # an unknown pair fails first, with the known ones
     if not inputs:
         raise PvedError("a pair report needs at least one input directory or file")
-    parts = _collect(pair, inputs, render_videos=videos)
-    page = _render(pair, parts)
     path = default_report_path(pair) if out is None else Path(out)
     if path.is_dir():
         path = path / f"{pair}-report.html"
+    check_writable("--out", path, directory=False)  # before the videos are rendered
+    parts = _collect(pair, inputs, render_videos=videos)
+    page = _render(pair, parts)
     atomic_write_bytes(path, page.encode("utf-8"))
     return path

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from pved.analysis.curves import Curve, bootstrap_summary, load_curve, plot_curves
+from pved.checks import check_seed, check_writable
 from pved.errors import PvedError
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 
@@ -35,13 +36,22 @@ def transfer_report(
     ``results.json`` and ``configs/<method>-seed<k>.json``; return ``out``."""
     rows: list[dict[str, Any]] = []
     curves: dict[str, list[Curve]] = {metric: [], "return_mean": []}
+    if not seeds:
+        raise PvedError("--seeds must name one or more transfer seeds, got none")
+    for seed in seeds:
+        check_seed("--seeds", seed)
+    # every run finished and the folder writable before a file of the report is written
+    for method in methods:
+        for s in seeds:
+            d = run_path(runs_root, pair, "transfer", method, s)
+            if not (d / "result.json").exists():
+                raise PvedError(f"transfer run {d} has no result.json (not finished)")
+    check_writable("--out", out)
     (out / "configs").mkdir(parents=True, exist_ok=True)
     for method in methods:
         dirs = [run_path(runs_root, pair, "transfer", method, s) for s in seeds]
         results = []
         for d, s in zip(dirs, seeds, strict=True):
-            if not (d / "result.json").exists():
-                raise PvedError(f"transfer run {d} has no result.json (not finished)")
             results.append(json.loads((d / "result.json").read_text()))
             shutil.copyfile(d / "config.json", out / "configs" / f"{method}-seed{s}.json")
         for key in curves:

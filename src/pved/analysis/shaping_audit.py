@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from pved.checks import check_int, check_number, check_seed, check_writable, named_options
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
@@ -244,24 +245,27 @@ def audit_pair(
     atomically) when given."""
     from pved.config import get_preset
     from pved.envs import env_id
+    from pved.experiments.stages import check_bank_for, check_model_for
     from pved.models import load_model
     from pved.runs import atomic_write_json
     from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank
 
     preset = get_preset(pair)
     betas = tuple(preset.beta_grid_for("pved") if betas is None else betas)
-    if steps <= 0:
-        raise PvedError(f"--steps must be > 0, not {steps}")
-    if not betas or any(not (math.isfinite(b) and b > 0) for b in betas):
-        raise PvedError(f"--betas must be positive numbers, got {list(betas)}")
-    if out is not None and Path(out).exists() and Path(out).is_dir():
-        raise PvedError(f"--out {out} is a directory; give a file path")
+    check_int("--steps", steps, low=1)
+    check_seed("--seed", seed)
+    if not betas:
+        raise PvedError("--betas must be one or more positive numbers, got none")
+    for beta in betas:
+        check_number("--betas", beta, low=0.0, low_open=True)
+    if out is not None:
+        check_writable("--out", out, directory=False)
     model, bank = load_model(Path(model_path)), load_bank(Path(bank_path))
-    if model.metadata.get("target_agent") not in (None, preset.target_agent):
-        raise PvedError(f"model {model_path} was trained for another pair")
     name = env_id(preset.target_agent, preset.target_task)
     probe = make_batched(name, 1)
     dt_target = getattr(probe, "dt", None)
+    check_model_for(preset, model, model_path, target_robot_state=probe.robot_state_indices)
+    check_bank_for(preset, bank, bank_path, model)
     probe.close()
     result = {
         "pair": pair,
@@ -308,19 +312,24 @@ def likelihood_reading(
     from pved.runs import Run, atomic_write_json, run_path
 
     preset = get_preset(pair)
+    with named_options(epochs="--epochs", seed="--seed"):
+        base = preset.model_config("pved", seed=seed, epochs=epochs)
+    if not isinstance(base, PVEDConfig):
+        raise PvedError(f"{pair}'s pved config is not a PVEDConfig")
+    check_int("rows", rows, low=1)
+    if out is not None:
+        check_writable("--out", out, directory=False)
+    runs = {v: run_path(Path(runs_root), pair, "likelihood", v, seed) for v in ("learned", "unit")}
+    for path in runs.values():
+        check_writable("--runs", path)
     data = load_dataset(Path(dataset_path))
     data.check_agents(preset.source_agent, preset.target_agent)
     x_s, x_t = data.model_inputs()
     result: dict[str, Any] = {"pair": pair, "dataset": str(dataset_path), "seed": seed}
-    for variance in ("learned", "unit"):
-        base = preset.model_config("pved", seed=seed, epochs=epochs)
-        if not isinstance(base, PVEDConfig):
-            raise PvedError(f"{pair}'s pved config is not a PVEDConfig")
+    for variance, path in runs.items():
         cfg = dataclasses.replace(base, decoder_variance=variance)
         run = Run(
-            run_path(Path(runs_root), pair, "likelihood", variance, seed),
-            {"stage": "likelihood", "pair": pair, "model_config": cfg},
-            tensorboard=False,
+            path, {"stage": "likelihood", "pair": pair, "model_config": cfg}, tensorboard=False
         )
         run.start()
         model = fit_model("pved", x_s, x_t, cfg, run, state_dims=data.state_dims)

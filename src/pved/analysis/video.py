@@ -14,9 +14,12 @@ from typing import Any
 import numpy as np
 
 from pved.analysis.tsne import make_env, run_episode, shared_task_options
+from pved.checks import check_int, check_seed, check_writable
 from pved.errors import PvedError
 from pved.rl.policy import load_policy
 from pved.runs import atomic_write_bytes
+
+VIDEO_SUFFIXES = (".gif", ".mp4")  # the formats _write writes
 
 
 def _rollout_frames(
@@ -118,6 +121,13 @@ def render_rollout(
         state and one frame after every step; a shorter episode holds its last frame.
     """
     out = Path(out_path)
+    # where the video goes, and what it is, checked before the rendering, which is the work
+    if out.suffix.lower() not in VIDEO_SUFFIXES:
+        raise PvedError(f"--out must end in .gif or .mp4, got {out.name!r}")
+    check_writable("--out", out, directory=False)
+    check_seed("--seed", seed)
+    if max_steps is not None:
+        check_int("--max-steps", max_steps, low=1)
     frames, reset_info, fps = _rollout_frames(
         policy_path, env_id, seed, max_steps, width, height, env_kwargs, None
     )

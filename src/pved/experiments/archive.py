@@ -46,6 +46,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pved.checks import check_writable
 from pved.errors import PvedError
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
 from pved.experiments.stages import train_model, train_policy, transfer
@@ -114,7 +115,7 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
     Files are written atomically and only when their content changed, so saving again
     after more runs finish adds those runs and leaves the rest untouched."""
     plan = ProtocolPlan.load(Path(protocol_dir))
-    archive = Path(archive_dir)
+    archive = check_writable("--archive", archive_dir)
     results = _finished_results(plan)
     counts = {"written": 0, "unchanged": 0}
     archive.mkdir(parents=True, exist_ok=True)
@@ -143,6 +144,7 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
     Keys are sorted and the file indented, so that a commit of a later summary shows the
     runs that finished since as added lines."""
     plan = ProtocolPlan.load(Path(protocol_dir))
+    check_writable("--archive", summary_dir)
     results = _finished_results(plan)
     runs: dict[str, Any] = {}
     for job in plan.expand(results):
@@ -239,7 +241,7 @@ def restore_archive(archive_dir: Path | str, protocol_dir: Path | str) -> dict[s
     any is copied (a damaged archive or summary restores nothing), and each run
     directory appears whole or not at all (made beside, then renamed)."""
     archive = Path(archive_dir)
-    out = Path(protocol_dir)
+    out = check_writable("--protocol", protocol_dir)
     try:
         archived_plan = json.loads((archive / PLAN_FILE).read_text())
     except FileNotFoundError:

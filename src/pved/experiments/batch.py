@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from pved import __version__
+from pved.checks import check_int, check_number, check_writable
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results
 from pved.experiments.runner import WORKER_ENV, _environment, _one_line
@@ -144,14 +145,13 @@ def export_batch(
     batch = Path(batch_dir)
     if batch.exists():
         raise PvedError(f"{batch} exists; a batch goes into a new directory")
-    if limit is not None and limit < 1:
-        raise PvedError(f"--limit must be at least 1, not {limit}")
-    if skip < 0:
-        raise PvedError(f"--skip must be at least 0, not {skip}")
-    if not claim_minutes >= 0:
-        raise PvedError(f"--claim-minutes must be at least 0, not {claim_minutes}")
-    if max_input_bytes is not None and max_input_bytes < 1:
-        raise PvedError(f"--max-input-mib must be more than 0, not {max_input_bytes / 2**20}")
+    if limit is not None:
+        check_int("--limit", limit, low=1)
+    check_int("--skip", skip, low=0)
+    check_number("--claim-minutes", claim_minutes, low=0.0)
+    if max_input_bytes is not None:
+        check_int("max_input_bytes", max_input_bytes, low=1)
+    check_writable("--batch", batch)
     input_bytes = 0  # of the inputs taken so far, all protocols
     now = time.time()
     per_protocol: list[list[dict[str, Any]]] = []
@@ -294,6 +294,12 @@ def run_batch(
     (each keeps its last checkpoint). ``start_by_s``: no run starts later than this
     (default: the deadline), so that a run that cannot finish is not begun."""
     t0 = time.monotonic()
+    if workers is not None:
+        check_int("--workers", workers, low=1)
+    if deadline_s is not None:
+        check_number("--deadline-s", deadline_s, low=0.0, low_open=True)
+    if start_by_s is not None:
+        check_number("--start-by-s", start_by_s, low=0.0)
     batch = Path(batch_dir)
     data, jobs = _read_batch(batch)
     runs_root = (batch / RUNS).resolve()
@@ -304,8 +310,6 @@ def run_batch(
         if file_digest(path) != digest:
             raise PvedError(f"batch input {path} differs from the one exported")
     workers = workers or os.cpu_count() or 1
-    if workers < 1:
-        raise PvedError(f"--workers must be at least 1, not {workers}")
     start_by = start_by_s if start_by_s is not None else deadline_s
     ctx = multiprocessing.get_context("spawn")  # fresh interpreters: no forked torch state
     errors = Path(tempfile.mkdtemp(prefix="pved-batch-"))
@@ -372,7 +376,7 @@ def pack_batch(
     batch = Path(batch_dir)
     _, jobs = _read_batch(batch)
     runs_root = batch / RUNS
-    out = Path(dest)
+    out = check_writable("--to", dest)
     out.mkdir(parents=True, exist_ok=True)
     groups: list[list[str]] = [[]]
     size = 0
@@ -426,6 +430,7 @@ def import_batch(
     leaves its unfinished runs where they are) and ``other`` (a run of a pair this
     protocol does not have: another protocol's, from a batch they share)."""
     plan = ProtocolPlan.load(Path(protocol_dir))
+    check_writable("--protocol", plan.runs)
     results = _finished_results(plan)
     expected = {
         _relative(job.run_dir, plan.runs, "run"): job

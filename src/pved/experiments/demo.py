@@ -16,8 +16,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pved.analysis.report import transfer_report
+from pved.checks import check_int, check_seed, check_writable
 from pved.config import EVALUATION_SEEDS, get_preset
-from pved.errors import PvedError
+from pved.errors import OptionError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
 from pved.runs import atomic_write_json, last_logged_step, run_path
 
@@ -53,10 +54,11 @@ class DemoConfig:
             "jobs",
         )
         for name in counts:
-            if getattr(self, name) <= 0:
-                raise PvedError(f"the demo's {name} must be positive, got {getattr(self, name)}")
-        if not self.seeds or min(self.seeds) < 0:
-            raise PvedError(f"the demo needs one or more seeds >= 0, got {list(self.seeds)}")
+            check_int(name, getattr(self, name), low=1)
+        if not self.seeds:
+            raise OptionError("seeds", list(self.seeds), "one or more seeds")
+        for seed in self.seeds:
+            check_seed("seeds", seed)
 
 
 def _transfer_job(
@@ -130,6 +132,8 @@ def run_demo(
     """Run the whole Reacher pipeline on the demo budget; return the report folder."""
     cfg = cfg or DemoConfig()
     preset = get_preset(cfg.pair)
+    check_writable("--runs", runs_root)
+    check_writable("--out", report_dir)
     start = time.time()
     dataset = collect_pairs(cfg.pair, episodes=cfg.pair_episodes, runs_root=runs_root)
     train_model(cfg.pair, "pved", dataset=dataset, epochs=cfg.model_epochs, runs_root=runs_root)

@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pved import __version__
+from pved.checks import check_int, check_writable
 from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
 from pved.errors import PvedError
 from pved.experiments.runner import (
@@ -654,6 +655,10 @@ def run_protocol(
     ``paper`` one."""
     plan = ProtocolPlan(pairs, methods, budget, Path(out))
     resolve_backend(backend, address)  # before anything is written
+    if workers is not None:
+        check_int("--workers", workers, low=1)
+    check_int("--retries", retries, low=0)
+    check_writable("--out", plan.out)
     if stages_from is not None:
         _stages_source(stages_from, plan.out)
     if address:
@@ -972,6 +977,10 @@ def plot_protocols(dirs: Sequence[Path | str], combined: Path | str | None = Non
     directory (Fig. 3's layout). Returns the figures written."""
     from pved.analysis.curves import plot_panels
 
+    if combined is not None:
+        check_writable("--out", combined, directory=False)
+    for d in dirs:  # each DIR gets its summary and curves again
+        check_writable("DIR", d)
     written: list[Path] = []
     panels: list[Panel] = []
     for d in dirs:

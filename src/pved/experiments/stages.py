@@ -17,7 +17,7 @@ import dataclasses
 import hashlib
 import json
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,17 +25,24 @@ import numpy as np
 import torch
 
 from pved import __version__
+from pved.checks import (
+    check_int,
+    check_number,
+    check_seed,
+    check_writable,
+    given,
+    named_options,
+)
 from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import env_id, get_entry
-from pved.errors import PvedError
+from pved.errors import OptionError, PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import (
-    ALIGNMENTS,
     LEARNED_ALIGNMENTS,
     PHASE_WINDOW,
     dtw_indices,
@@ -54,7 +61,7 @@ from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import PPOConfig, train_ppo
+from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
 from pved.transfer.shaping import (
     LatentShaping,
@@ -63,6 +70,7 @@ from pved.transfer.shaping import (
     check_shaping_form,
 )
 from pved.transfer.source_bank import (
+    SourceBank,
     bank_dt,
     bank_time_scale,
     build_source_bank,
@@ -136,7 +144,10 @@ def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Pat
     return run_file(path, "policy.pt", f"{agent}'s policy")
 
 
-def _check_policy(policy: Policy, env_name: str, obs_dim: int, act_dim: int) -> None:
+def _check_policy(policy: Policy, env_name: str, env: BatchedEnv) -> None:
+    """A policy made for another agent (its dims) is refused before it is rolled out."""
+    obs_dim = env.single_observation_space.shape[0]
+    act_dim = env.single_action_space.shape[0]
     if policy.obs_dim != obs_dim or policy.act_dim != act_dim:
         raise PvedError(
             f"policy dims (obs {policy.obs_dim}, act {policy.act_dim}) do not match {env_name} "
@@ -173,6 +184,7 @@ def train_policy(
     runs_root: Path = DEFAULT_RUNS,
     eval_episodes: int | None = None,
     progress: bool = True,
+    checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
 ) -> Path:
     """PPO for any agent on any task (``pved train-policy``). Returns the policy file.
 
@@ -180,22 +192,33 @@ def train_policy(
     (default: the preset's ``policy_eval_episodes``). With the preset's
     ``policy_keep_best``, the policy of the evaluation point with the best mean return
     (the end of training included) is the one saved, and ``result.json`` says which step
-    it came from; judge it on fresh episodes (``pved evaluate``), not on these."""
+    it came from; judge it on fresh episodes (``pved evaluate``), not on these.
+    ``checkpoint_every_s``: wall-clock seconds between checkpoints (:func:`train_ppo`)."""
     preset = preset_for_agent(agent)
     name = env_id(agent, task)
-    ppo = dataclasses.replace(preset.policy_config(agent, task), seed=seed)
-    if steps is not None:
-        ppo = dataclasses.replace(ppo, total_steps=steps)
+    with named_options(seed="--seed", total_steps="--steps"):
+        ppo = dataclasses.replace(
+            preset.policy_config(agent, task), seed=seed, **given(total_steps=steps)
+        )
+    episodes = (
+        preset.policy_eval_episodes
+        if eval_episodes is None
+        else check_int("--eval-episodes", eval_episodes, low=1)
+    )
+    check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
+    if reward is not None and not isinstance(reward, str):
+        raise OptionError("--reward", reward, "the name of a reward variant")
     env_kwargs = {"reward": reward} if reward else {}
     config = {"stage": "policy", "env_id": name, "env_kwargs": env_kwargs, "ppo": ppo}
     run = Run(run_path(runs_root, preset.name, "policy", f"{agent}-{task}", seed), config)
     policy_file = run.path / "policy.pt"
     if run.is_done() and policy_file.exists():
         return policy_file
-    run.start()
+    check_writable("--runs", run.path)
+    # the envs check the reward variant: made before the run directory is
     env = make_batched(name, ppo.num_envs, **env_kwargs)
-    episodes = preset.policy_eval_episodes if eval_episodes is None else eval_episodes
     eval_fn = _eval_fn(name, episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
+    run.start()
     metadata = {
         "env_id": name,
         "env_kwargs": env_kwargs,
@@ -235,6 +258,7 @@ def train_policy(
         eval_fn=evaluate_and_keep_best,
         stop_fn=no_longer_falls_nor_improves,
         progress=progress,
+        checkpoint_every_s=checkpoint_every_s,
     )
     if preset.policy_keep_best and best_stats.exists():
         best = json.loads(best_stats.read_text())
@@ -280,10 +304,12 @@ def collect_pairs(
     ``shared_task_keys``."""
     preset = get_preset(pair)
     cfg = preset.pairing
+    # the options checked as the pairing config checks its own fields; the run's config
+    # keeps the preset's pairing config (its hash is that of the runs made before)
+    with named_options(episodes="--episodes", align="--align", seed="--seed"):
+        dataclasses.replace(cfg, **given(episodes=episodes, align=align, seed=seed))
     episodes = cfg.episodes if episodes is None else episodes
     align = cfg.align if align is None else align
-    if align not in ALIGNMENTS:
-        raise PvedError(f"unknown alignment {align!r}; known: {', '.join(ALIGNMENTS)}")
     task = preset.training_task if task is None else task
     if task not in (preset.training_task, preset.target_task):
         raise PvedError(
@@ -315,10 +341,13 @@ def collect_pairs(
     out = run.path / "pairs.npz"
     if run.is_done() and out.exists():
         return out
-    run.start()
+    check_writable("--runs", run.path)
     src_env = make_batched(src_id, cfg.num_envs)
     tgt_env = make_batched(tgt_id, cfg.num_envs)
     src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
+    _check_policy(src_pol, src_id, src_env)
+    _check_policy(tgt_pol, tgt_id, tgt_env)
+    run.start()
     pairs = collect_episode_pairs(
         src_env,
         tgt_env,
@@ -496,6 +525,8 @@ def train_model(
 ) -> Path:
     """Fit a shared-space model on a paired dataset (``pved train-model``)."""
     preset = get_preset(pair)
+    with named_options(epochs="--epochs", seed="--seed"):
+        model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     data_path = (
         run_file(dataset, "pairs.npz", "dataset")
         if dataset is not None
@@ -514,7 +545,6 @@ def train_model(
         tgt_env.single_observation_space.shape[0],
         tgt_env.single_action_space.shape[0],
     )
-    model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     config = {
         "stage": "model",
         "pair": pair,
@@ -526,6 +556,7 @@ def train_model(
     out = run.path / "model.pt"
     if run.is_done() and out.exists():
         return out
+    check_writable("--runs", run.path)
     run.start()
     x_s, x_t = data.model_inputs()
     fitted = fit_model(
@@ -577,6 +608,10 @@ def build_bank(
 ) -> Path:
     """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer."""
     preset = get_preset(pair)
+    if episodes is not None:
+        with named_options(bank_episodes="--episodes"):
+            dataclasses.replace(preset.transfer, bank_episodes=episodes)
+    check_seed("--seed", seed)
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
     path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
     name = env_id(preset.source_agent, preset.target_task)
@@ -596,11 +631,14 @@ def build_bank(
     out = run.path / "bank.npz"
     if run.is_done() and out.exists():
         return out
-    run.start()
+    check_writable("--runs", run.path)
     env = _eval_env(name, episodes)
+    policy = load_policy(path)
+    _check_policy(policy, name, env)
+    run.start()
     bank = build_source_bank(
         env,
-        load_policy(path),
+        policy,
         episodes,
         preset.bank_match_keys,
         seed=seed,
@@ -611,6 +649,68 @@ def build_bank(
         {"bank": str(out), "episodes": episodes, "success_rate": bank.header["success_rate"]}
     )
     return out
+
+
+def check_model_for(
+    preset: PairPreset,
+    model: SharedSpaceModel,
+    path: Path | str,
+    method: str | None = None,
+    target_robot_state: Sequence[int] | np.ndarray | None = None,
+) -> None:
+    """Refuse, in one line, a model made for another pair: its metadata's pair, agents
+    and robot-state selection of the target (``target_robot_state``: the target env's,
+    when known) against ``preset``'s, its name against ``method`` (when given). A key a
+    model file lacks (one made before the key was written) is not checked."""
+    meta = model.metadata
+    wanted = {
+        "pair": preset.name,
+        "source_agent": preset.source_agent,
+        "target_agent": preset.target_agent,
+    }
+    for key, want in wanted.items():
+        if meta.get(key) not in (None, want):
+            raise PvedError(
+                f"model {path} was trained for another pair: its {key} is {meta[key]!r}, "
+                f"{preset.name}'s is {want!r}"
+            )
+    if method is not None and model.name != method:
+        raise PvedError(f"model {path} is a {model.name!r} model, not {method!r}")
+    have = meta.get("robot_state_indices_target")
+    if have is not None and target_robot_state is not None:
+        if [int(i) for i in have] != [int(i) for i in target_robot_state]:
+            raise PvedError(
+                f"model {path} reads the target's robot state at {list(have)}, "
+                f"the {preset.target_agent} env has it at {list(target_robot_state)}"
+            )
+
+
+def check_bank_for(
+    preset: PairPreset, bank: SourceBank, path: Path | str, model: SharedSpaceModel | None = None
+) -> None:
+    """Refuse, in one line, a source bank made for another pair: its header's env (the
+    pair's source agent on its target task), match keys and robot-state selection (that
+    of ``model``'s source, when given) against the pair's. A key a bank file lacks is not
+    checked."""
+    header = bank.header
+    want_env = env_id(preset.source_agent, preset.target_task)
+    if header.get("env_id") not in (None, want_env):
+        raise PvedError(
+            f"source bank {path} was made on {header['env_id']}, {preset.name}'s is {want_env}"
+        )
+    keys = header.get("match_keys")
+    if keys is not None and list(keys) != list(preset.bank_match_keys):
+        raise PvedError(
+            f"source bank {path} matches on {list(keys)}, {preset.name} on "
+            f"{list(preset.bank_match_keys)}"
+        )
+    have = header.get("robot_state_indices")
+    want = None if model is None else model.metadata.get("robot_state_indices_source")
+    if have is not None and want is not None and list(have) != list(want):
+        raise PvedError(
+            f"source bank {path} holds the source's robot state at {list(have)}, "
+            f"the model reads it at {list(want)}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -679,18 +779,36 @@ def transfer_spec(
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     check_shaping_form(shaping_form)  # before any file is looked for
     check_shaping_action(shaping_action)
+    check_int("--shaping-start", shaping_start, low=0)
     preset = get_preset(pair)
-    tcfg = preset.transfer
-    beta = tcfg.beta if beta is None else beta
-    ppo = dataclasses.replace(tcfg.ppo, seed=seed)
-    if steps is not None:
-        ppo = dataclasses.replace(ppo, total_steps=steps)
-    # the learning curve's evaluation interval: the preset's unless given
-    ppo = dataclasses.replace(ppo, eval_every=tcfg.eval_every if eval_every is None else eval_every)
-    eval_episodes = tcfg.eval_episodes if eval_episodes is None else eval_episodes
-    final_episodes = (
-        tcfg.final_eval_episodes if final_eval_episodes is None else final_eval_episodes
-    )
+    # Every option lands in the transfer and PPO configs, which check their fields (a
+    # negative or NaN beta, a negative count of final episodes): refused here, before a
+    # file is read or a directory made, not after the training.
+    with named_options(
+        beta="--beta",
+        eval_every="--eval-every",
+        eval_episodes="--eval-episodes",
+        final_eval_episodes="--final-eval-episodes",
+        seed="--seed",
+        total_steps="--steps",
+    ):
+        tcfg = dataclasses.replace(
+            preset.transfer,
+            **given(
+                beta=beta,
+                eval_every=eval_every,
+                eval_episodes=eval_episodes,
+                final_eval_episodes=final_eval_episodes,
+            ),
+        )
+        # the learning curve's evaluation interval: the preset's unless given
+        ppo = dataclasses.replace(
+            tcfg.ppo,
+            seed=seed,
+            eval_every=tcfg.eval_every,
+            **given(total_steps=steps),
+        )
+    beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
     name = env_id(preset.target_agent, preset.target_task)
     config: dict[str, Any] = {
         "stage": "transfer",
@@ -736,8 +854,6 @@ def transfer_spec(
         raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
     if shaping_form != "eq10" and shaping_inputs is None:
         raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
-    if shaping_start < 0:
-        raise PvedError(f"the shaping start must be >= 0 env steps, not {shaping_start}")
     return TransferSpec(
         config=config,
         run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
@@ -772,6 +888,7 @@ def transfer(
     shaping_start: int = 0,
     shaping_form: str = "eq10",
     shaping_action: str = "mean",
+    checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
 ) -> dict[str, Any]:
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
@@ -788,8 +905,14 @@ def transfer(
     ``shaping_form="log1p"`` (not in the paper) shapes with −β·log(1 + D) in place of
     Eq. 10's −β·D (:class:`LatentShaping`). ``shaping_action``: the target action Eq. 10
     encodes, ``"mean"`` (the policy's mean action, as in the pairs and the bank) or
-    ``"taken"`` (the sampled exploration action)."""
+    ``"taken"`` (the sampled exploration action). ``checkpoint_every_s``: wall-clock
+    seconds between checkpoints (:func:`train_ppo`; not part of the run's config).
+
+    Everything is checked before the run directory is made: the options, where the run
+    goes, and that the model and bank were made for this pair (:func:`check_model_for`,
+    :func:`check_bank_for`)."""
     torch.set_num_threads(1)
+    check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
     preset = get_preset(pair)
     spec = transfer_spec(
         pair,
@@ -813,15 +936,13 @@ def transfer(
     run = Run(spec.run_dir, spec.config)
     if run.is_done():
         return run.read_result()
-    run.start()
+    check_writable("--runs", run.path)
     env = make_batched(name, ppo.num_envs, **spec.train_env_kwargs)
     if shaping_inputs is not None:
         model = load_model(shaping_inputs[0])
-        if model.metadata.get("target_agent") not in (None, preset.target_agent):
-            raise PvedError(f"model {shaping_inputs[0]} was trained for another pair")
-        if model.name != method:
-            raise PvedError(f"model {shaping_inputs[0]} is a {model.name!r} model, not {method!r}")
+        check_model_for(preset, model, shaping_inputs[0], method, env.robot_state_indices)
         bank = load_bank(shaping_inputs[1])
+        check_bank_for(preset, bank, shaping_inputs[1], model)
         shaping = LatentShaping(
             model,
             bank,
@@ -836,7 +957,10 @@ def transfer(
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
-    policy = train_ppo(env, ppo, run, eval_fn=eval_fn, progress=progress)
+    run.start()
+    policy = train_ppo(
+        env, ppo, run, eval_fn=eval_fn, progress=progress, checkpoint_every_s=checkpoint_every_s
+    )
     policy_file = run.path / "policy.pt"
     policy.save(
         policy_file,
@@ -876,11 +1000,11 @@ def evaluate(
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
     pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
+    check_int("--episodes", episodes, low=1)
+    check_seed("--seed", seed)
     policy = load_policy(run_file(policy_path, "policy.pt", "policy"))
     env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
-    _check_policy(
-        policy, env_name, env.single_observation_space.shape[0], env.single_action_space.shape[0]
-    )
+    _check_policy(policy, env_name, env)
     info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
     return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
 
@@ -900,6 +1024,8 @@ def preset_summary(preset: PairPreset) -> dict[str, Any]:
 
 __all__ = [
     "build_bank",
+    "check_bank_for",
+    "check_model_for",
     "collect_pairs",
     "evaluate",
     "np",
@@ -927,8 +1053,7 @@ def _analysis_inputs(
 ) -> tuple[PairPreset, SharedSpaceModel, Policy, Policy, str, str]:
     preset = get_preset(pair)
     model = load_model(run_file(model_path, "model.pt"))
-    if model.metadata.get("target_agent") not in (None, preset.target_agent):
-        raise PvedError(f"model {model_path} was trained for another pair than {pair!r}")
+    check_model_for(preset, model, model_path)
     src = load_policy(
         pretrained_policy_path(preset.source_agent, preset.target_task)
         if source_policy is None
@@ -986,6 +1111,16 @@ def analyze_subspaces(
     from pved.envs.terrain import CURVE_RAMP_LENGTH
 
     torch.set_num_threads(1)
+    # checked before the rollouts, which take the time, and so is where the figures go
+    check_int("--episodes", episodes, low=1)
+    check_int("--marks", marks, low=0)
+    check_seed("--seed", seed)
+    check_int("x_groups", x_groups, low=1)
+    if target_later_frames is not None:
+        check_int("--later-frames", target_later_frames, low=0)
+    if later_frame_stride is not None:
+        check_int("--later-frame-stride", later_frame_stride, low=1)
+    check_writable("--out", out)
     preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
         pair, model_path, target_policy, source_policy
     )
@@ -997,8 +1132,6 @@ def analyze_subspaces(
         else int(target_later_frames)
     )
     stride = DEFAULT_LATER_FRAME_STRIDE if later_frame_stride is None else int(later_frame_stride)
-    if later < 0 or stride < 1:  # checked before the rollouts, which take the time
-        raise PvedError(f"--later-frames must be >= 0 and its stride >= 1, got {later}, {stride}")
     data = embed_rollouts(
         model, src, tgt, src_id, tgt_id, episodes, seed, match_keys=preset.bank_match_keys
     )
@@ -1046,6 +1179,10 @@ def bound(
     from pved.analysis.bound import theorem1_bound
 
     torch.set_num_threads(1)
+    check_int("--episodes", episodes, low=1)
+    check_number("--quantile", quantile, low=0.0, high=1.0)
+    check_number("--gamma", gamma, low=0.0, high=1.0)
+    check_seed("--seed", seed)
     preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
         pair, model_path, target_policy, source_policy
     )

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from pved.checks import check_int, check_number, check_seed
 from pved.errors import PvedError
 
 
@@ -48,18 +49,15 @@ class ModelConfig:
     grad_clip: float | None = None
 
     def __post_init__(self) -> None:
-        if not self.lr > 0:
-            raise PvedError(f"config: lr must be > 0, got {self.lr}")
-        if self.batch_size < 1:
-            raise PvedError(f"config: batch_size must be >= 1, got {self.batch_size}")
-        if self.epochs < 0:
-            raise PvedError(f"config: epochs must be >= 0, got {self.epochs}")
-        if not 0.0 <= self.val_fraction < 1.0:
-            raise PvedError(f"config: val_fraction must be in [0, 1), got {self.val_fraction}")
-        if self.checkpoint_every < 1:
-            raise PvedError(f"config: checkpoint_every must be >= 1, got {self.checkpoint_every}")
-        if self.grad_clip is not None and not self.grad_clip > 0:
-            raise PvedError(f"config: grad_clip must be > 0 or None, got {self.grad_clip}")
+        check_number("lr", self.lr, low=0.0, low_open=True)
+        check_int("batch_size", self.batch_size, low=1)
+        # zero epochs would save the untrained initialisation as a trained model
+        check_int("epochs", self.epochs, low=1)
+        check_number("val_fraction", self.val_fraction, low=0.0, high=1.0, high_open=True)
+        check_seed("seed", self.seed)
+        check_int("checkpoint_every", self.checkpoint_every, low=1)
+        if self.grad_clip is not None:
+            check_number("grad_clip", self.grad_clip, low=0.0, low_open=True)
 
 
 def config_to_dict(config: ModelConfig) -> dict[str, Any]:

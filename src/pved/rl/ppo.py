@@ -36,8 +36,9 @@ import torch
 from tqdm import tqdm
 
 from pved import __version__
+from pved.checks import check_int, check_number, check_seed
 from pved.envs.base import BatchedEnv
-from pved.errors import PvedError
+from pved.errors import OptionError, PvedError
 from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
 from pved.rl.networks import (
     LOG_2PI,
@@ -130,28 +131,35 @@ class PPOConfig:
 
     def __post_init__(self) -> None:
         # accept lists (from JSON) for hidden sizes, keeping the dataclass hashable
-        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
-        positive = ("total_steps", "num_envs", "steps_per_env", "epochs", "minibatch_size")
-        for name in positive:
-            if int(getattr(self, name)) <= 0:
-                raise PvedError(f"PPOConfig.{name} must be positive, got {getattr(self, name)}")
+        if not isinstance(self.hidden_sizes, list | tuple) or not self.hidden_sizes:
+            raise OptionError("hidden_sizes", self.hidden_sizes, "a non-empty list of widths")
+        widths = tuple(check_int("hidden_sizes", h, low=1) for h in self.hidden_sizes)
+        object.__setattr__(self, "hidden_sizes", widths)
+        # each value checked by type and range here, the one place a PPO config is made
+        # from a user's options (docs/decisions.md, "Bad input and kills")
+        for name in ("total_steps", "num_envs", "steps_per_env", "epochs", "minibatch_size"):
+            check_int(name, getattr(self, name), low=1)
         if self.batch_size % self.minibatch_size != 0:
             raise PvedError(
                 f"PPOConfig.minibatch_size {self.minibatch_size} must divide the batch "
                 f"num_envs*steps_per_env = {self.batch_size}"
             )
-        if not (0.0 < self.gamma <= 1.0 and 0.0 <= self.gae_lambda <= 1.0):
-            raise PvedError(
-                f"PPOConfig needs 0<gamma<=1, 0<=gae_lambda<=1, got {self.gamma}, {self.gae_lambda}"
-            )
-        if self.lr <= 0 or self.clip <= 0 or self.max_grad_norm <= 0:
-            raise PvedError("PPOConfig.lr, clip and max_grad_norm must be positive")
-        if self.checkpoint_every < 0 or self.eval_every < 0:
-            raise PvedError("PPOConfig.checkpoint_every and eval_every must be >= 0")
-        if not self.hidden_sizes or min(self.hidden_sizes) <= 0:
-            raise PvedError(
-                f"PPOConfig.hidden_sizes must be positive widths, got {self.hidden_sizes}"
-            )
+        check_number("gamma", self.gamma, low=0.0, high=1.0, low_open=True)
+        check_number("gae_lambda", self.gae_lambda, low=0.0, high=1.0)
+        for name in ("lr", "adam_eps", "clip", "max_grad_norm", "obs_clip", "reward_clip"):
+            check_number(name, getattr(self, name), low=0.0, low_open=True)
+        for name in ("clip_value", "target_kl"):
+            if getattr(self, name) is not None:
+                check_number(name, getattr(self, name), low=0.0, low_open=True)
+        check_number("ent_coef", self.ent_coef, low=0.0)
+        check_number("vf_coef", self.vf_coef, low=0.0)
+        check_number("init_log_std", self.init_log_std)
+        check_int("checkpoint_every", self.checkpoint_every, low=0)
+        check_int("eval_every", self.eval_every, low=0)
+        check_seed("seed", self.seed)
+        for name in ("anneal_lr", "normalize_advantage", "normalize_obs", "normalize_reward"):
+            if not isinstance(getattr(self, name), bool):
+                raise OptionError(name, getattr(self, name), "true or false")
         check_activation(self.activation)
         if self.backend not in BACKENDS:
             raise PvedError(f"PPOConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
@@ -786,6 +794,21 @@ class _Trainer:
         return out
 
 
+#: Wall-clock seconds between the checkpoints :func:`train_ppo` takes besides those every
+#: ``checkpoint_every`` env steps: a kill then loses about a minute of training, not up to
+#: 100k steps (hours of a slow body's). A checkpoint costs a few milliseconds.
+CHECKPOINT_SECONDS = 60.0
+
+
+def check_checkpoint_seconds(value: object, option: str = "checkpoint_every_s") -> float | None:
+    """A time between checkpoints: a number of seconds >= 0 (0: after every update), or
+    None or inf for none by time; else :class:`OptionError` naming ``option``."""
+    if value is None:
+        return None
+    seconds = check_number(option, value, low=0.0, infinite=True)
+    return None if math.isinf(seconds) else seconds
+
+
 def train_ppo(
     env: BatchedEnv,
     config: PPOConfig,
@@ -795,6 +818,8 @@ def train_ppo(
     stop_fn: Callable[[], bool] | None = None,
     progress: bool = True,
     env_id: str | None = None,
+    checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
+    clock: Callable[[], float] = time.monotonic,
 ) -> Policy:
     """Train a Gaussian actor-critic with PPO on ``env`` and return the policy.
 
@@ -808,8 +833,10 @@ def train_ppo(
     env reports ``is_success``), losses, approx-KL, clip fraction and steps/s to
     ``run.log``; a full checkpoint (networks, optimiser, normalisers, RNG, env state when
     the env has ``state_dict``/``load_state_dict``, step counter) is saved every
-    ``checkpoint_every`` env steps; the final policy is saved to
-    ``run.path / "policy.pt"``. ``result.json`` is left to the caller.
+    ``checkpoint_every`` env steps, and after the first update that ends
+    ``checkpoint_every_s`` seconds of wall time after the last checkpoint (or the start);
+    the final policy is saved to ``run.path / "policy.pt"``. ``result.json`` is left to
+    the caller.
 
     Args:
         env: any BatchedEnv with flat Box spaces and ``num_envs == config.num_envs``.
@@ -826,6 +853,11 @@ def train_ppo(
         progress: show a tqdm progress bar.
         env_id: name stored in the policy's metadata (default: the env's ``env_id``
             attribute or class name).
+        checkpoint_every_s: seconds of wall time between checkpoints by time (0: after
+            every update; None or inf: by steps only). Not part of ``config``: when a
+            checkpoint is taken does not change what the run computes, since every one
+            is taken between two whole updates and resumes exactly.
+        clock: the wall clock those seconds are read from (tests give their own).
 
     Returns:
         The trained :class:`Policy` (with its observation normaliser).
@@ -834,6 +866,7 @@ def train_ppo(
         PvedError: bad config/env, a checkpoint from another config, or NaN/inf in the
             loss ("NaN/inf in PPO loss at update k").
     """
+    every_s = check_checkpoint_seconds(checkpoint_every_s)
     torch.set_num_threads(1)
     trainer = _Trainer(env, config)
     state = None
@@ -878,6 +911,7 @@ def train_ppo(
             run.log(trainer.global_step, **result)
         return not final and stop_fn is not None and stop_fn()
 
+    last_checkpoint = clock()
     try:
         if trainer.global_step == 0:
             maybe_eval(final=False)
@@ -908,14 +942,18 @@ def train_ppo(
             last = trainer.update >= config.num_updates
             if not last and maybe_eval(final=False):
                 break
-            if (
-                run is not None
-                and config.checkpoint_every > 0
-                and trainer.global_step >= trainer.next_checkpoint
-            ):
-                while trainer.next_checkpoint <= trainer.global_step:
-                    trainer.next_checkpoint += config.checkpoint_every
+            by_steps = (
+                config.checkpoint_every > 0 and trainer.global_step >= trainer.next_checkpoint
+            )
+            by_time = every_s is not None and clock() - last_checkpoint >= every_s
+            if run is not None and (by_steps or by_time):
+                # A checkpoint by time leaves the schedule by steps as it is: the state
+                # saved is the same at either, so a resume from one goes on exactly.
+                if by_steps:
+                    while trainer.next_checkpoint <= trainer.global_step:
+                        trainer.next_checkpoint += config.checkpoint_every
                 run.save_checkpoint(trainer.global_step, trainer.state_dict())
+                last_checkpoint = clock()
         else:
             maybe_eval(final=True)
     finally:

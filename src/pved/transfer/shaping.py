@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from pved.checks import check_number
 from pved.envs.base import BatchedEnv, Info
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
@@ -116,7 +117,9 @@ class LatentShaping:
             raise PvedError(f"the bank's time scale must be a positive number, not {time_scale}")
         self.model = model.eval()
         self.bank = bank
-        self.beta = float(beta)
+        # as TransferConfig checks it: a negative beta would reward moving away from the
+        # source, a NaN one turn every reward NaN (a notebook or an SB3 user builds this)
+        self.beta = check_number("beta", beta, low=0.0)
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
         self.start = int(start)
         self.form = form
