@@ -74,6 +74,7 @@ from pved.transfer.source_bank import (
     bank_dt,
     bank_time_scale,
     build_source_bank,
+    env_dt,
     load_bank,
     save_bank,
 )
@@ -1197,16 +1198,6 @@ def bound(
         quantile=quantile,
         gamma=gamma,
         match_keys=preset.bank_match_keys,
-        time_scale=bank_time_scale(preset.pairing.align, _env_dt(src_id), _env_dt(tgt_id)),
+        time_scale=bank_time_scale(preset.pairing.align, env_dt(src_id), env_dt(tgt_id)),
     )
     return {"summary": result.summary(), **result.as_dict()}
-
-
-def _env_dt(name: str) -> float | None:
-    """The control period of env ``name`` (None for an env without one)."""
-    env = make_batched(name, 1)
-    try:
-        dt = getattr(env, "dt", None)
-    finally:
-        env.close()
-    return None if dt is None else float(dt)

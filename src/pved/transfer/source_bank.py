@@ -116,20 +116,23 @@ class SourceBank:
         return np.asarray(self.x[episode, step])
 
 
+def env_dt(name: str) -> float | None:
+    """The control period in seconds of env ``name`` (None for an env without one)."""
+    env = make_batched(name, 1)
+    try:
+        dt = getattr(env, "dt", None)
+    finally:
+        env.close()
+    return None if dt is None else float(dt)
+
+
 def bank_dt(bank: SourceBank) -> float | None:
     """The source's control period: the bank header's, or for a bank written before the
     header kept it, that of the env named in its header (None when neither has one)."""
     if "dt" in bank.header:
         return bank.dt
     name = bank.header.get("env_id")
-    if not name:
-        return None
-    env = make_batched(str(name), 1)
-    try:
-        dt = getattr(env, "dt", None)
-    finally:
-        env.close()
-    return None if dt is None else float(dt)
+    return env_dt(str(name)) if name else None
 
 
 def build_source_bank(
