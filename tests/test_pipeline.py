@@ -182,7 +182,7 @@ def test_bad_input_is_one_line_and_nonzero(
     one_line_error(capsys, "transfer", "--runs", runs, "--model", "pved",
                    match="not found")  # fmt: skip
     one_line_error(capsys, "transfer", "--runs", runs, "--model", "magic",
-                   match="unknown model 'magic'")  # fmt: skip
+                   match="unknown method 'magic'")  # fmt: skip
     one_line_error(capsys, "collect-pairs", "--runs", runs, "--align", "warp",
                    match="--align must be one of subsample, time, dtw, phase")  # fmt: skip
     # an input file that is not there, or a directory that is no run of its stage

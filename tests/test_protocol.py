@@ -249,7 +249,7 @@ def test_a_protocol_from_a_narrower_beta_search_is_carried_on(
 def test_plan_rejects_unknown_names(tmp_path: Path) -> None:
     with pytest.raises(PvedError, match="unknown pair"):
         ProtocolPlan(["nope"], ["pved"], "smoke", tmp_path)
-    with pytest.raises(PvedError, match="unknown model"):
+    with pytest.raises(PvedError, match="unknown method"):
         ProtocolPlan(["reacher"], ["pvde"], "smoke", tmp_path)
     with pytest.raises(PvedError, match="unknown budget"):
         ProtocolPlan(["reacher"], ["pved"], "huge", tmp_path)
@@ -1046,7 +1046,7 @@ def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
     ("args", "message"),
     [
         (["--pair", "nope"], "unknown pair"),
-        (["--pair", "reacher", "--methods", "pved", "magic"], "unknown model"),
+        (["--pair", "reacher", "--methods", "pved", "magic"], "unknown method"),
         (["--pair", "reacher", "--budget", "huge"], "unknown budget"),
         (["--pair", "reacher", "--stages-from", "nowhere"], "not a protocol directory"),
     ],

@@ -37,10 +37,13 @@ def _cmd_list(args: argparse.Namespace) -> None:
     from pved.config import PRESETS
     from pved.envs.registry import registered_env_ids
     from pved.models import MODELS
+    from pved.transfer.methods import METHODS
 
     print("pairs:  " + ", ".join(sorted(PRESETS)))
     print("models: " + ", ".join(sorted(MODELS)))
-    print("transfer methods: the models, ppo (no transfer), oracle (source's full reward)")
+    print("transfer methods:")
+    for method in METHODS.values():
+        print(f"  {method.name:<17} {method.summary}")
     print("envs:   " + ", ".join(registered_env_ids()))
 
 
@@ -460,13 +463,13 @@ def build_parser() -> argparse.ArgumentParser:
     # and names the known ones in a one-line error, so argparse's `choices` is not used)
     from pved.config import BUDGETS, PRESETS
     from pved.envs.registry import AGENTS, TASKS
-    from pved.experiments.stages import REFERENCE_METHODS
     from pved.models import MODELS
     from pved.pairing.align import ALIGNMENTS
+    from pved.transfer.methods import METHODS
 
     pairs = " | ".join(sorted(PRESETS))
     models = " | ".join(sorted(MODELS))
-    methods = f"{models} | {' | '.join(REFERENCE_METHODS)}"
+    methods = " | ".join(sorted(METHODS))
     pair_help = f"{pairs} (default: %(default)s)"
     pair_tasks = "; ".join(
         f"{name}: {preset.training_task} | {preset.target_task}"
@@ -569,8 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default="pved",
-        help=f"{methods}: a model (shaping), ppo (no transfer) or oracle (the source's full "
-        "reward); default: %(default)s",
+        help=f"{methods}: a method (`pved list` says what each is); default: %(default)s",
     )
     p.add_argument("--seed", type=int, default=20000)
     p.add_argument(
@@ -598,10 +600,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--shaping-form",
-        default="eq10",
         metavar="FORM",
-        help="eq10: the paper's -beta*D (default); log1p: -beta*log(1+D), which keeps the "
-        "term's ordering but compresses its range (not in the paper)",
+        help="how the distance D enters the reward (default: the method's): eq10, the "
+        "paper's -beta*D; log1p: -beta*log(1+D), which keeps the term's ordering but "
+        "compresses its range; potential: -beta*D as a look-back potential (not in the paper)",
     )
     p.add_argument(
         "--shaping-action",

@@ -56,9 +56,6 @@ from pved.experiments.runner import (
     run_jobs,
 )
 from pved.experiments.stages import (
-    NO_TRANSFER,
-    ORACLE,
-    REFERENCE_METHODS,
     build_bank,
     collect_pairs,
     default_dataset_path,
@@ -68,10 +65,10 @@ from pved.experiments.stages import (
     train_policy,
     transfer,
 )
-from pved.models.registry import model_class
 from pved.models.train import shared_subspace_collapsed
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
+from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method
 
 if TYPE_CHECKING:
     from pved.analysis.curves import Panel
@@ -189,8 +186,7 @@ class ProtocolPlan:
         for pair in pairs:
             get_preset(pair)
         for method in methods:
-            if method not in REFERENCE_METHODS:
-                model_class(method)  # an unknown name fails here with the known ones
+            get_method(method)  # an unknown name fails here with the known ones
         if len(set(methods)) != len(methods) or len(set(pairs)) != len(pairs):
             raise PvedError("protocol: a pair or method is named twice")
         self.pairs = list(pairs)
@@ -237,10 +233,16 @@ class ProtocolPlan:
 
     @property
     def model_methods(self) -> list[str]:
-        return [m for m in self.methods if m not in REFERENCE_METHODS]
+        return [m for m in self.methods if get_method(m).shaped]
 
     def _grid(self, pair: str, method: str) -> tuple[float, ...]:
-        grid = get_preset(pair).beta_grid_for(method)
+        preset = get_preset(pair)
+        own = get_method(method).beta_grid
+        # the pair's grid for the method where it sets one, else the method's own scale
+        if own is not None and method not in dict(preset.method_beta_grids):
+            grid = own
+        else:
+            grid = preset.beta_grid_for(method)
         size = self.budget.beta_grid_size
         return grid if size is None else grid[:size]
 
@@ -301,7 +303,7 @@ class ProtocolPlan:
             name = transfer_run_name(method, beta, init, source)
             kwargs.update(
                 beta=beta,
-                model_path=default_model_path(pair, method, self.runs, seed=init),
+                model_path=default_model_path(pair, self._model(method), self.runs, seed=init),
                 bank_path=self._bank_path(pair, source),
             )
         kwargs["run_name"] = name
@@ -327,7 +329,16 @@ class ProtocolPlan:
         name = f"{preset.source_agent}-{preset.target_task}"
         return run_path(self.runs, pair, "bank", name, source) / "bank.npz"
 
+    @staticmethod
+    def _model(method: str) -> str:
+        """The model whose shared space ``method`` shapes with: methods naming the same
+        model share its runs (``pved`` and ``pved-potential`` train one PVED)."""
+        model = get_method(method).model
+        assert model is not None, method
+        return model
+
     def _model_job(self, pair: str, method: str, init: int, deps: tuple[str, ...]) -> Job:
+        method = self._model(method)
         return Job(
             key=f"{pair}/model/{method}/init{init}",
             fn=train_model,
@@ -485,7 +496,7 @@ class ProtocolPlan:
                 continue
             chosen_init = _best(init_candidates, preset.metric_resolution).init
             state["init"] = chosen_init
-            model_key = f"{pair}/model/{method}/init{chosen_init}"
+            model_key = f"{pair}/model/{self._model(method)}/init{chosen_init}"
             chosen = next(i for i, job in enumerate(jobs) if job.key == model_key)
             jobs[chosen] = dataclasses.replace(jobs[chosen], end_product=True)
             for k in range(b.source_policies):
@@ -830,7 +841,7 @@ def _summarize(
             if "beta" in state:
                 entry.update(beta=state["beta"], init=state.get("init"))
             if state.get("init") is not None:
-                model_dir = run_path(plan.runs, pair, "model", method, state["init"])
+                model_dir = run_path(plan.runs, pair, "model", plan._model(method), state["init"])
                 if (model_dir / "result.json").exists():
                     model_result = json.loads((model_dir / "result.json").read_text())
                     val = {

@@ -39,7 +39,7 @@ from pved.envs.registry import env_id, get_entry
 from pved.errors import OptionError, PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.base import SharedSpaceModel
-from pved.models.registry import load_model, model_class, save_model
+from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import (
@@ -63,6 +63,7 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
+from pved.transfer.methods import get_method
 from pved.transfer.shaping import (
     LatentShaping,
     ShapedBatchedEnv,
@@ -86,11 +87,6 @@ def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
     """The batched env evaluations run on: at most ``EVAL_NUM_ENVS`` copies, and no more
     copies than episodes (a copy without an episode to run would still be stepped)."""
     return make_batched(env_name, max(1, min(EVAL_NUM_ENVS, episodes)), **kwargs)
-
-
-NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
-ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
-REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
 
 
 def _hash_state(digest: Any, obj: Any) -> None:
@@ -773,12 +769,14 @@ def transfer_spec(
     runs_root: Path = DEFAULT_RUNS,
     run_name: str | None = None,
     shaping_start: int = 0,
-    shaping_form: str = "eq10",
+    shaping_form: str | None = None,
     shaping_action: str = "mean",
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
-    check_shaping_form(shaping_form)  # before any file is looked for
+    recipe = get_method(method)  # an unknown method name fails here, before any file check
+    shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
+    check_shaping_form(shaping_form)
     check_shaping_action(shaping_action)
     check_int("--shaping-start", shaping_start, low=0)
     preset = get_preset(pair)
@@ -822,15 +820,14 @@ def transfer_spec(
     }
     shaping_inputs: tuple[Path, Path] | None = None
     train_env_kwargs: dict[str, Any] = {}
-    if method == ORACLE:
+    if recipe.train_reward == "full":
         train_env_kwargs = {"reward": "full"}
         config["train_reward"] = "full"
-    elif method != NO_TRANSFER:
-        model_class(method)  # an unknown method name fails here, before any file check
+    if recipe.model is not None:
         m_path = (
             run_file(model_path, "model.pt", "model")
             if model_path
-            else default_model_path(pair, method, runs_root)
+            else default_model_path(pair, recipe.model, runs_root)
         )
         b_path = (
             run_file(bank_path, "bank.npz", "source bank")
@@ -887,7 +884,7 @@ def transfer(
     run_name: str | None = None,
     progress: bool = True,
     shaping_start: int = 0,
-    shaping_form: str = "eq10",
+    shaping_form: str | None = None,
     shaping_action: str = "mean",
     checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
 ) -> dict[str, Any]:
@@ -897,17 +894,19 @@ def transfer(
     The run lives in ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``;
     a ``run_name`` keeps apart runs of one method with different betas, models or banks.
 
-    ``method`` is a model name (``pved``, a variant, ``gupta2017``: the target agent's
-    restricted reward plus the Eq. 10 shaping term of that model), ``ppo`` (the
-    restricted reward alone) or ``oracle`` (the source's full reward, no shaping: what
-    the target could do if the reward told it everything). Evaluation always uses the
-    target task's default env, so every method is measured alike. ``shaping_start``
-    (env steps; not in the paper) holds the shaping term at 0 until then;
-    ``shaping_form="log1p"`` (not in the paper) shapes with −β·log(1 + D) in place of
-    Eq. 10's −β·D (:class:`LatentShaping`). ``shaping_action``: the target action Eq. 10
-    encodes, ``"mean"`` (the policy's mean action, as in the pairs and the bank) or
-    ``"taken"`` (the sampled exploration action). ``checkpoint_every_s``: wall-clock
-    seconds between checkpoints (:func:`train_ppo`; not part of the run's config).
+    ``method`` is a name of :data:`pved.transfer.methods.METHODS`: a model's name
+    (``pved``, a variant, ``gupta2017``: the target agent's restricted reward plus the
+    Eq. 10 shaping term of that model), a method beyond the paper (``pved-potential``),
+    ``ppo`` (the restricted reward alone) or ``oracle`` (the source's full reward, no
+    shaping: what the target could do if the reward told it everything). Evaluation
+    always uses the target task's default env, so every method is measured alike.
+    ``shaping_start`` (env steps; not in the paper) holds the shaping term at 0 until
+    then; ``shaping_form`` (default: the method's) replaces the form Eq. 10's distance
+    enters the reward in, e.g. ``"log1p"`` for −β·log(1 + D) (:class:`LatentShaping`).
+    ``shaping_action``: the target action Eq. 10 encodes, ``"mean"`` (the policy's mean
+    action, as in the pairs and the bank) or ``"taken"`` (the sampled exploration action).
+    ``checkpoint_every_s``: wall-clock seconds between checkpoints (:func:`train_ppo`; not
+    part of the run's config).
 
     Everything is checked before the run directory is made: the options, where the run
     goes, and that the model and bank were made for this pair (:func:`check_model_for`,
@@ -941,7 +940,9 @@ def transfer(
     env = make_batched(name, ppo.num_envs, **spec.train_env_kwargs)
     if shaping_inputs is not None:
         model = load_model(shaping_inputs[0])
-        check_model_for(preset, model, shaping_inputs[0], method, env.robot_state_indices)
+        check_model_for(
+            preset, model, shaping_inputs[0], get_method(method).model, env.robot_state_indices
+        )
         bank = load_bank(shaping_inputs[1])
         check_bank_for(preset, bank, shaping_inputs[1], model)
         shaping = LatentShaping(
@@ -955,6 +956,7 @@ def transfer(
                 preset.pairing.align, bank_dt(bank), getattr(env, "dt", None)
             ),
             action=spec.shaping_action,
+            gamma=ppo.gamma,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)

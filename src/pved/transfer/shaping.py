@@ -38,8 +38,10 @@ from pved.models.base import SharedSpaceModel
 from pved.transfer.source_bank import SourceBank
 
 # How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
-# −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping").
-SHAPING_FORMS = ("eq10", "log1p")
+# −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping");
+# "potential" takes Φ = −β·D as a potential and pays Φ_t − Φ_{t−1}/γ (outside the paper;
+# docs/decisions/transfer.md, "A potential-based Eq. 10").
+SHAPING_FORMS = ("eq10", "log1p", "potential")
 
 
 # Which target action Eq. 10 encodes: "mean" is the policy's mean action at s_T (what the
@@ -83,7 +85,12 @@ class LatentShaping:
             applies from the first step (``start=0``, the default); it asks whether the
             term hurts from the start, when it can be far larger than the task reward, or
             all along (docs/decisions.md).
-        form: ``"eq10"`` (the default) gives −β·D, the paper's term; ``"log1p"`` gives
+        form: ``"eq10"`` (the default) gives −β·D, the paper's term; ``"potential"``
+            takes Φ_t = −β·D_t as a potential and pays Φ_t − Φ_{t−1}/γ at step t (look-back
+            potential-based shaping, Wiewiora et al. 2003; Φ_{−1} = 0), whose discounted sum
+            over an episode is γ^{T−1}·Φ_{T−1}: one step's term, however long the episode,
+            so the target gains nothing by ending it early (the wrappers keep Φ_{t−1};
+            :meth:`term`); ``"log1p"`` gives
             −β·log(1 + D). Not in the paper: a Gaussian KL grows with the squared gap
             between means over the learned variances, and on jaco-fetch it starts at
             millions of nats a step where matched training pairs cost under one
@@ -96,6 +103,7 @@ class LatentShaping:
         action: which target action the wrappers encode, ``"mean"`` (the policy's mean
             action, given to the wrapper before each step; the default) or ``"taken"``
             (the action the env is stepped with).
+        gamma: the learner's discount γ; only the ``"potential"`` form reads it.
     """
 
     def __init__(
@@ -108,6 +116,7 @@ class LatentShaping:
         form: str = "eq10",
         time_scale: float = 1.0,
         action: str = "mean",
+        gamma: float = 0.99,
     ) -> None:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
@@ -125,6 +134,7 @@ class LatentShaping:
         self.form = form
         self.time_scale = float(time_scale)
         self.action = action
+        self.gamma = check_number("gamma", gamma, low=0.0, high=1.0, low_open=True)
         # rows shaped so far: the clock ``start`` is read against (saved with the env)
         self.steps = 0
         if bank.dim != model.source_dim:
@@ -159,6 +169,15 @@ class LatentShaping:
             d = np.log1p(d)
         return -self.beta * d
 
+    def term(self, value: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """The reward term (N,) of one step from :meth:`reward`'s ``value`` (N,) at this
+        step and ``previous`` (N,), the value at the same env copy's previous step (0 at
+        an episode's first step): the value itself, or for the ``"potential"`` form
+        Φ_t − Φ_{t−1}/γ."""
+        if self.form != "potential":
+            return value
+        return value - previous / self.gamma
+
 
 class ShapedBatchedEnv(BatchedEnv):
     """A batched env whose reward carries the Eq. 10 shaping term."""
@@ -177,6 +196,8 @@ class ShapedBatchedEnv(BatchedEnv):
         self._episode = np.zeros(self.num_envs, dtype=np.int64)
         self._rng: np.random.Generator | None = None
         self._mean: np.ndarray | None = None
+        # each copy's last value of LatentShaping.reward (the potential form's Φ_{t−1})
+        self._previous = np.zeros(self.num_envs)
 
     def set_mean_actions(self, mean: np.ndarray) -> None:
         """The policy's mean actions (N, act_dim) at the current observations, which the
@@ -193,6 +214,7 @@ class ShapedBatchedEnv(BatchedEnv):
             self._rng = np.random.default_rng(seed)
         self._obs = obs
         self._t[:] = 0
+        self._previous[:] = 0.0
         params = task_params(info, self.match_keys, self.num_envs)
         self._episode = self.shaping.bank.match(params, self._rng)
         return obs, info
@@ -212,7 +234,9 @@ class ShapedBatchedEnv(BatchedEnv):
                 self._mean, self.single_action_space.low, self.single_action_space.high
             )
             self._mean = None  # one step's mean, never reused for the next
-        shaping = self.shaping.reward(self._obs, encoded, self._episode, self._t)
+        value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
+        shaping = self.shaping.term(value, self._previous)
+        self._previous = value.copy()  # never the returned term itself
         obs, env_reward, terminated, truncated, info = self.env.step(actions)
         info = dict(info)
         info["env_reward"] = env_reward
@@ -221,6 +245,7 @@ class ShapedBatchedEnv(BatchedEnv):
         self._t += 1
         if done.any():
             self._t[done] = 0
+            self._previous[done] = 0.0
             params = task_params(info, self.match_keys, self.num_envs)
             self._episode[done] = self.shaping.bank.match(params[done], self._rng)
         self._obs = obs
@@ -241,6 +266,7 @@ class ShapedBatchedEnv(BatchedEnv):
             "episode": self._episode.copy(),
             "rng": None if self._rng is None else self._rng.bit_generator.state,
             "shaping_steps": self.shaping.steps,
+            "previous": self._previous.copy(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -255,6 +281,10 @@ class ShapedBatchedEnv(BatchedEnv):
         # states saved before the shaping start existed lack the clock; it only matters
         # with a start, which those runs did not have
         self.shaping.steps = int(state.get("shaping_steps", 0))
+        # states saved before the potential form existed lack it; only that form reads it
+        self._previous = np.asarray(
+            state.get("previous", np.zeros(self.num_envs)), dtype=np.float64
+        ).copy()
         self._rng = None
         if state["rng"] is not None:
             self._rng = np.random.default_rng()
@@ -301,6 +331,7 @@ class LatentShapingWrapper(
         self._t = 0
         self._episode = 0
         self._rng: np.random.Generator | None = None
+        self._previous = 0.0  # the potential form's Φ_{t−1}
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -310,6 +341,7 @@ class LatentShapingWrapper(
             self._rng = np.random.default_rng(seed)
         self._obs = np.asarray(obs)
         self._t = 0
+        self._previous = 0.0
         params = task_params(info, self.match_keys, 1)
         self._episode = int(self.shaping.bank.match(params, self._rng)[0])
         return obs, info
@@ -325,11 +357,11 @@ class LatentShapingWrapper(
                 getattr(space, "low", -np.inf),
                 getattr(space, "high", np.inf),
             )
-        shaping = float(
-            self.shaping.reward(
-                self._obs[None], act, np.array([self._episode]), np.array([self._t])
-            )[0]
+        value = self.shaping.reward(
+            self._obs[None], act, np.array([self._episode]), np.array([self._t])
         )
+        shaping = float(self.shaping.term(value, np.array([self._previous]))[0])
+        self._previous = float(value[0])
         obs, env_reward, terminated, truncated, info = self.env.step(action)
         info = dict(info)
         info["env_reward"] = float(env_reward)

@@ -1,0 +1,122 @@
+"""Registry of transfer methods: what each name trains the target agent with.
+
+A method is a recipe, not a model: which shared-space model (if any) shapes the reward,
+in which form, and on which reward the target trains. The paper's methods keep the
+model's name (``pved``, its ablations, ``gupta2017``); the references are ``ppo`` and
+``oracle``; a method beyond the paper gets a name of its own here, so ``pved protocol``,
+``pved claims`` and ``pved compare`` treat it like the others (issue 51).
+
+Adding a method = one :class:`Method` in :data:`METHODS`; its model is trained (and, in a
+protocol, shared with every method that names the same model).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pved.errors import PvedError
+from pved.models.registry import MODELS
+from pved.transfer.shaping import SHAPING_FORMS
+
+NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
+ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
+REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
+
+
+@dataclass(frozen=True)
+class Method:
+    """One transfer method.
+
+    Attributes:
+        name: the name the CLI, protocols and reports use.
+        model: the shared-space model whose shared codes shape the reward (a key of
+            :data:`pved.models.MODELS`); None for a method with no shaping term.
+        shaping_form: how the distance enters the reward (:data:`SHAPING_FORMS`).
+        train_reward: the target task's reward the target trains on, ``"restricted"``
+            (the target task as the paper sets it) or ``"full"`` (the oracle's).
+        paper: whether the paper defines the method (the others go beyond it).
+        summary: one line for ``--help`` and the docs.
+        beta_grid: the protocol's β grid for the method where a pair sets none for it
+            (None: the pair's common grid).
+    """
+
+    name: str
+    model: str | None
+    shaping_form: str = "eq10"
+    train_reward: str = "restricted"
+    paper: bool = True
+    summary: str = ""
+    beta_grid: tuple[float, ...] | None = None
+
+    @property
+    def shaped(self) -> bool:
+        """Whether the method adds a shaping term (and so needs a model and a bank)."""
+        return self.model is not None
+
+
+def _paper_model_methods() -> dict[str, Method]:
+    summaries = {
+        "pved": "PVED's shared space, Eq. 10 (the paper's method)",
+        "pved-state-only": "ablation: encoders see states only (paper IV.B)",
+        "pved-shared-only": "ablation: no agent-specific space (paper IV.B)",
+        "pved-det-shared": "ablation: deterministic shared space (paper IV.B)",
+        "pved-vae": "ablation: a VAE per agent, shared prior (paper IV.B)",
+        "gupta2017": "Gupta et al. 2017's invariant feature space (baseline)",
+    }
+    return {name: Method(name, name, summary=summaries.get(name, "")) for name in MODELS}
+
+
+#: Method name -> recipe.
+METHODS: dict[str, Method] = {
+    **_paper_model_methods(),
+    # Beyond the paper (docs/decisions/transfer.md, "A potential-based Eq. 10"): PVED's
+    # distance as a potential, so the shaping's discounted sum over an episode is one
+    # step's term, not one per step: the target cannot escape the term by ending its
+    # episodes early, and the term no longer outweighs the task over a long episode.
+    "pved-potential": Method(
+        "pved-potential",
+        "pved",
+        shaping_form="potential",
+        paper=False,
+        summary="beyond the paper: PVED's Eq. 10 distance as a look-back potential",
+        # a step pays β·(D_{t−1} − D_t) + β·D_{t−1}·(1/γ − 1), not β·D_t: for the same β
+        # one to two orders of magnitude less than Eq. 10's term, so the grid sits a decade
+        # higher (set before any run of the method; the protocol extends it at an edge)
+        beta_grid=(1.0, 0.1, 0.01),
+    ),
+    NO_TRANSFER: Method(NO_TRANSFER, None, summary="PPO on the target task's reward alone"),
+    ORACLE: Method(
+        ORACLE, None, train_reward="full", summary="PPO on the source's full reward, no shaping"
+    ),
+}
+
+for _method in METHODS.values():  # a typo in the table fails at import, not mid-protocol
+    assert _method.shaping_form in SHAPING_FORMS, _method
+    assert _method.model is None or _method.model in MODELS, _method
+
+
+def get_method(name: str) -> Method:
+    """The registered method ``name``; an unknown one raises :class:`PvedError` naming the
+    known ones."""
+    try:
+        return METHODS[name]
+    except (KeyError, TypeError):
+        raise PvedError(
+            f"unknown method {name!r}; known methods: {', '.join(sorted(METHODS))}"
+        ) from None
+
+
+def shaped_methods() -> list[str]:
+    """The names of the methods with a shaping term."""
+    return [m.name for m in METHODS.values() if m.shaped]
+
+
+__all__ = [
+    "METHODS",
+    "NO_TRANSFER",
+    "ORACLE",
+    "REFERENCE_METHODS",
+    "Method",
+    "get_method",
+    "shaped_methods",
+]
