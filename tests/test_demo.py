@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from helpers import run_cli
-from pved.experiments.demo import DemoConfig, run_demo
+from pved.experiments.demo import DemoConfig, run_demo, transfer_verdict
 
 
 def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
@@ -35,6 +35,33 @@ def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
     for method in cfg.methods:
         run = tmp_path / "runs/reacher/transfer" / method / "seed20000"
         assert json.loads((run / "result.json").read_text())["steps"] == 2048
+    # it ends by saying whether the transfer shows, from the same runs
+    text = (out / "results.md").read_text()
+    assert "## Does the transfer show?" in text and "pved − ppo" in text
+    comparison = json.loads((out / "comparison.json").read_text())
+    assert text.rstrip().endswith(transfer_verdict(comparison))
+
+
+def _comparison(final: tuple[float, float], early: tuple[float, float]) -> dict:
+    def diff(ci: tuple[float, float]) -> dict:
+        return {"diff": sum(ci) / 2, "diff_ci": list(ci), "p": 0.5}
+
+    return {"groups": {"pved": {}, "ppo": {}}, "diff": {"final": diff(final), "early": diff(early)}}
+
+
+@pytest.mark.parametrize(
+    ("final", "early", "start"),
+    [
+        ((0.01, 0.2), (-0.1, 0.1), "Transfer shows at this budget: pved is ahead of ppo"),
+        ((-0.1, 0.1), (0.02, 0.3), "Transfer shows at this budget"),
+        ((-0.3, -0.01), (-0.1, 0.1), "Transfer does not pay here: pved is behind ppo"),
+        ((-0.1, 0.2), (-0.1, 0.1), "Transfer does not show at this budget"),
+    ],
+)
+def test_the_demo_verdict_follows_the_intervals(
+    final: tuple[float, float], early: tuple[float, float], start: str
+) -> None:
+    assert transfer_verdict(_comparison(final, early)).startswith(start)
 
 
 @pytest.mark.parametrize(

@@ -2,7 +2,8 @@
 
 Shipped pretrained policies (Reach for both arms, Push for the 3-link source) → paired
 rollouts → PVED → source bank → transfer with PVED shaping against plain PPO on the same
-budget and seeds, run side by side (one process per core) → a report folder.
+budget and seeds, run side by side (one process per core) → a report folder that ends
+by saying, plainly, whether the transfer shows on these seeds (:func:`transfer_verdict`).
 """
 
 from __future__ import annotations
@@ -12,15 +13,17 @@ import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from tqdm import tqdm
 
+from pved.analysis.compare import compare_runs, format_comparison
 from pved.analysis.report import transfer_report
 from pved.checks import check_int, check_seed, check_writable
 from pved.config import EVALUATION_SEEDS, get_preset
 from pved.errors import OptionError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
-from pved.runs import atomic_write_json, last_logged_step, run_path
+from pved.runs import atomic_write_bytes, atomic_write_json, last_logged_step, run_path
 
 
 @dataclass(frozen=True)
@@ -124,6 +127,29 @@ def run_transfers(cfg: DemoConfig, runs_root: Path) -> None:
             f.result()  # re-raise a worker's error
 
 
+def transfer_verdict(comparison: dict[str, Any]) -> str:
+    """One plain sentence from :func:`pved.analysis.compare.compare_runs`' result (shaped
+    method first, PPO second): whether the transfer shows on these seeds, by the 95%
+    intervals of the differences in final and early score (the early score: the mean of
+    the evaluation points in the first quarter of training, how fast it learns)."""
+    a, b = list(comparison["groups"])
+    final, early = comparison["diff"]["final"], comparison["diff"]["early"]
+
+    def said(d: dict[str, Any]) -> str:
+        lo, hi = d["diff_ci"]
+        return f"{d['diff']:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+
+    gaps = f"final {said(final)}, early {said(early)}"
+    if final["diff_ci"][0] > 0 or early["diff_ci"][0] > 0:
+        return f"Transfer shows at this budget: {a} is ahead of {b} on the same seeds ({gaps})."
+    if final["diff_ci"][1] < 0 or early["diff_ci"][1] < 0:
+        return f"Transfer does not pay here: {a} is behind {b} on the same seeds ({gaps})."
+    return (
+        f"Transfer does not show at this budget: {a} - {b} on the same seeds is {gaps}, "
+        "intervals that hold 0. Where it shows, at the paper's budget: docs/results.md."
+    )
+
+
 def run_demo(
     runs_root: Path = Path("runs/demo"),
     report_dir: Path = Path("reports/reacher-demo"),
@@ -150,4 +176,20 @@ def run_demo(
         extra={"demo_config": cfg, "wall_seconds": round(time.time() - start, 1)},
     )
     atomic_write_json(out / "demo_config.json", cfg)
+    if len(cfg.methods) == 2:
+        a, b = (
+            [run_path(runs_root, cfg.pair, "transfer", m, s) for s in cfg.seeds]
+            for m in cfg.methods
+        )
+        comparison = compare_runs(a, b, (cfg.methods[0], cfg.methods[1]))
+        atomic_write_json(out / "comparison.json", comparison)
+        text = (out / "results.md").read_text()
+        text += (
+            "\n## Does the transfer show?\n\n"
+            + format_comparison(comparison)
+            + "\n\n"
+            + transfer_verdict(comparison)
+            + "\n"
+        )
+        atomic_write_bytes(out / "results.md", text.encode())
     return out
