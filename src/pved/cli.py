@@ -284,7 +284,7 @@ def _cmd_claims(args: argparse.Namespace) -> None:
 
 
 def _cmd_tsne(args: argparse.Namespace) -> None:
-    from pved.experiments.stages import analyze_subspaces
+    from pved.analysis.transferred import analyze_subspaces
 
     result = analyze_subspaces(
         args.pair,
@@ -303,7 +303,7 @@ def _cmd_tsne(args: argparse.Namespace) -> None:
 
 
 def _cmd_bound(args: argparse.Namespace) -> None:
-    from pved.experiments.stages import bound
+    from pved.analysis.transferred import bound
 
     result = bound(
         args.pair,

@@ -27,7 +27,6 @@ import torch
 from pved import __version__
 from pved.checks import (
     check_int,
-    check_number,
     check_seed,
     check_writable,
     given,
@@ -42,22 +41,20 @@ from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, model_class, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
-from pved.pairing.align import (
-    LEARNED_ALIGNMENTS,
-    PHASE_WINDOW,
-    dtw_indices,
-    first_component,
-    gait_phase,
-    phase_indices,
-)
 from pved.pairing.align import align as align_steps
 from pved.pairing.collect import (
-    EpisodePair,
     collect_episode_pairs,
     env_header,
     pairs_to_dataset,
 )
 from pved.pairing.dataset import load_dataset, save_dataset
+from pved.pairing.rounds import (
+    Embedder,
+    SharedFit,
+    base_alignment,
+    dtw_rounds,
+    phase_alignment,
+)
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
@@ -74,7 +71,6 @@ from pved.transfer.source_bank import (
     bank_dt,
     bank_time_scale,
     build_source_bank,
-    env_dt,
     load_bank,
     save_bank,
 )
@@ -376,20 +372,15 @@ def collect_pairs(
     # control periods, for alignment by physical time (None for envs without one)
     dt_s, dt_t = getattr(src_env, "dt", None), getattr(tgt_env, "dt", None)
     header.update(dt_source=dt_s, dt_target=dt_t)
-    if align in LEARNED_ALIGNMENTS:
-        time_only = "subsample"
-    elif align == "phase":  # re-paired by phase around the same moment
-        time_only = "time" if dt_s is not None and dt_t is not None else "subsample"
-    else:
-        time_only = align
+    time_only = base_alignment(align, dt_s, dt_t)
     alignment = [
         align_steps(time_only, len(e_s.obs), len(e_t.obs), dt_s, dt_t) for e_s, e_t in pairs
     ]
     if align == "dtw":
-        alignment, rounds = _dtw_rounds(preset, pairs, alignment, header, seed, progress)
-        header["dtw"] = rounds
+        fit = _dtw_fit(preset, header, seed, progress)
+        alignment, header["dtw"] = dtw_rounds(pairs, alignment, header, cfg.dtw_rounds, fit)
     if align == "phase":
-        alignment, header["phase"] = _phase_alignment(pairs, alignment, header)
+        alignment, header["phase"] = phase_alignment(pairs, alignment, header)
         header["phase"]["base"] = time_only
     dataset = pairs_to_dataset(pairs, alignment, shared_task_keys=shared_task_keys, header=header)
     save_dataset(out, dataset)
@@ -411,97 +402,29 @@ def collect_pairs(
     return out
 
 
-def _model_rows(pairs: list[EpisodePair], header: dict[str, Any]) -> list[np.ndarray]:
-    """Per episode pair, the model inputs ``[robot state, action]`` of both agents."""
-    idx_s = np.asarray(header["robot_state_indices_source"])
-    idx_t = np.asarray(header["robot_state_indices_target"])
-    rows = []
-    for e_s, e_t in pairs:
-        rows.append(np.concatenate([e_s.obs[:, idx_s], e_s.act], 1).astype(np.float32))
-        rows.append(np.concatenate([e_t.obs[:, idx_t], e_t.act], 1).astype(np.float32))
-    return rows
-
-
-def _dtw_rounds(
-    preset: PairPreset,
-    pairs: list[EpisodePair],
-    alignment: list[tuple[np.ndarray, np.ndarray]],
-    header: dict[str, Any],
-    seed: int,
-    progress: bool,
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[dict[str, float]]]:
-    """Gupta et al. (2017)'s alternation: train the pair's model on the current
-    alignment, re-align each episode pair by DTW on the two agents' shared means, repeat
-    ``dtw_rounds`` times. Returns the last alignment and per-round statistics (how many
-    rows changed partner, the model's validation loss)."""
+def _dtw_fit(preset: PairPreset, header: dict[str, Any], seed: int, progress: bool) -> SharedFit:
+    """What a DTW round trains (:func:`pved.pairing.rounds.dtw_rounds`): the pair's
+    ``dtw_model`` for ``dtw_epochs`` on the aligned rows, returned as its embedder of
+    both agents' rows into their shared means."""
     cfg = preset.pairing
     config = preset.model_config(cfg.dtw_model, seed=seed, epochs=cfg.dtw_epochs)
-    rows = _model_rows(pairs, header)
     state_dims = (
         len(header["robot_state_indices_source"]),
         len(header["robot_state_indices_target"]),
     )
-    stats: list[dict[str, float]] = []
-    for round_index in range(cfg.dtw_rounds):
-        data = pairs_to_dataset(pairs, alignment, shared_task_keys=(), header=header)
-        x_s, x_t = data.model_inputs()
+
+    def fit(x_s: np.ndarray, x_t: np.ndarray) -> Embedder:
         model = fit_model(cfg.dtw_model, x_s, x_t, config, state_dims=state_dims, progress=progress)
-        new_alignment = []
-        with torch.no_grad():
-            for e in range(len(pairs)):
-                emb_s = model.shared_source(torch.as_tensor(rows[2 * e])).mean.numpy()
-                emb_t = model.shared_target(torch.as_tensor(rows[2 * e + 1])).mean.numpy()
-                new_alignment.append(dtw_indices(emb_s, emb_t))
-        changed = [
-            float(
-                np.mean(_partner(old, len(pairs[e][0].obs)) != _partner(new, len(pairs[e][0].obs)))
-            )
-            for e, (old, new) in enumerate(zip(alignment, new_alignment, strict=True))
-        ]
-        stats.append({"round": float(round_index + 1), "moved_fraction": float(np.mean(changed))})
-        alignment = new_alignment
-    return alignment, stats
 
+        def embed(rows_s: np.ndarray, rows_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with torch.no_grad():
+                emb_s = model.shared_source(torch.as_tensor(rows_s)).mean.numpy()
+                emb_t = model.shared_target(torch.as_tensor(rows_t)).mean.numpy()
+            return emb_s, emb_t
 
-def _phase_alignment(
-    pairs: list[EpisodePair],
-    alignment: list[tuple[np.ndarray, np.ndarray]],
-    header: dict[str, Any],
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
-    """Re-pair every episode pair of the time alignment by gait phase
-    (:func:`pved.pairing.align.phase_indices`). Each agent's gait signal is the first
-    principal component of its robot state, standardised over all its episodes' steps;
-    its phase is taken per episode. Returns the new alignment and what it did: the share
-    of the components' variance, and how far (in source steps) a pair's source step moved
-    (mean, and the share of pairs that moved)."""
-    stats: dict[str, Any] = {"window": PHASE_WINDOW}
-    phases: dict[str, list[np.ndarray]] = {}
-    for side, key, column in (("source", "robot_state_indices_source", 0),
-                              ("target", "robot_state_indices_target", 1)):  # fmt: skip
-        idx = np.asarray(header[key])
-        states = [np.asarray(pair[column].obs, dtype=np.float64)[:, idx] for pair in pairs]
-        mean, scale, direction, share = first_component(np.concatenate(states))
-        stats[f"pc1_variance_{side}"] = share
-        phases[side] = [gait_phase(((x - mean) / scale) @ direction) for x in states]
-    new_alignment = [
-        phase_indices(phases["source"][e], phases["target"][e], base)
-        for e, base in enumerate(alignment)
-    ]
-    moved = np.concatenate(
-        [np.abs(new[0] - old[0]) for old, new in zip(alignment, new_alignment, strict=True)]
-    )
-    stats["moved_fraction"] = float(np.mean(moved > 0))
-    stats["mean_source_steps_moved"] = float(moved.mean())
-    return new_alignment, stats
+        return embed
 
-
-def _partner(alignment: tuple[np.ndarray, np.ndarray], length_source: int) -> np.ndarray:
-    """For each source step, the mean target step it is paired with (NaN if unpaired)."""
-    i_s, i_t = alignment
-    total = np.bincount(i_s, weights=i_t, minlength=length_source)
-    count = np.bincount(i_s, minlength=length_source)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return fit
 
 
 def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
@@ -1036,7 +959,6 @@ __all__ = [
 ]
 
 
-# ---------------------------------------------------------------------------- analysis
 def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
     """``path`` itself, or ``path/name`` when ``path`` is a run directory (a stage's
     ``model.pt``, ``bank.npz``, ``pairs.npz``, ``policy.pt``); :class:`PvedError` naming
@@ -1047,157 +969,3 @@ def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
         where = f"{path} (a directory without {name})" if path.is_dir() else str(path)
         raise PvedError(f"{what or name} not found: {where}")
     return resolved
-
-
-def _analysis_inputs(
-    pair: str, model_path: Path | str, target_policy: Path | str, source_policy: Path | str | None
-) -> tuple[PairPreset, SharedSpaceModel, Policy, Policy, str, str]:
-    preset = get_preset(pair)
-    model = load_model(run_file(model_path, "model.pt"))
-    check_model_for(preset, model, model_path)
-    src = load_policy(
-        pretrained_policy_path(preset.source_agent, preset.target_task)
-        if source_policy is None
-        else run_file(source_policy, "policy.pt")
-    )
-    tgt = load_policy(run_file(target_policy, "policy.pt"))
-    return (
-        preset,
-        model,
-        src,
-        tgt,
-        env_id(preset.source_agent, preset.target_task),
-        env_id(preset.target_agent, preset.target_task),
-    )
-
-
-def analyze_subspaces(
-    pair: str,
-    model_path: Path | str,
-    target_policy: Path | str,
-    out: Path | str,
-    *,
-    source_policy: Path | str | None = None,
-    episodes: int = 6,
-    marks: int = 4,
-    seed: int = 0,
-    target_later_frames: int | None = None,
-    later_frame_stride: int | None = None,
-    x_groups: int = 2,
-) -> dict[str, Any]:
-    """``pved tsne``: t-SNE of both agents' shared and individual posterior means along
-    target-task rollouts (paper IV.C, Figs. 4–7), frames nearest to marks, and the numbers
-    beside them (time correspondence, agent-identity probes) in ``out/numbers.json``.
-
-    For Humanoid → Ant also the paper's Fig. 7 and Fig. 8 additions:
-
-    * ``target_later_frames`` later target frames per mark, ``later_frame_stride`` control
-      steps apart (None: :func:`pved.analysis.tsne.default_later_frames` of the pair's
-      target agent, 2 for Ant, and ``DEFAULT_LATER_FRAME_STRIDE``);
-    * on Curve, where the envs report the torso x, ``fig8_groups.png`` and
-      ``numbers["x_split"]``: the target's shared-embedding points in ``x_groups``
-      k-means groups, counted before and after the x where the Curve's slope stops rising
-      (``CURVE_RAMP_LENGTH``, 12 m). Other tasks have no such landmark and skip it.
-    """
-    from pved.analysis.tsne import (
-        DEFAULT_LATER_FRAME_STRIDE,
-        default_later_frames,
-        embed_rollouts,
-        mark_positions,
-        plot_tsne,
-        subspace_embeddings,
-        subspace_numbers,
-        write_x_split,
-    )
-    from pved.envs.terrain import CURVE_RAMP_LENGTH
-
-    torch.set_num_threads(1)
-    # checked before the rollouts, which take the time, and so is where the figures go
-    check_int("--episodes", episodes, low=1)
-    check_int("--marks", marks, low=0)
-    check_seed("--seed", seed)
-    check_int("x_groups", x_groups, low=1)
-    if target_later_frames is not None:
-        check_int("--later-frames", target_later_frames, low=0)
-    if later_frame_stride is not None:
-        check_int("--later-frame-stride", later_frame_stride, low=1)
-    check_writable("--out", out)
-    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
-        pair, model_path, target_policy, source_policy
-    )
-    # The default follows the target agent (Ant's movement needs several frames, Fig. 7),
-    # not the pair's name, so any pair with an Ant target gets it.
-    later = (
-        default_later_frames(preset.target_agent)
-        if target_later_frames is None
-        else int(target_later_frames)
-    )
-    stride = DEFAULT_LATER_FRAME_STRIDE if later_frame_stride is None else int(later_frame_stride)
-    data = embed_rollouts(
-        model, src, tgt, src_id, tgt_id, episodes, seed, match_keys=preset.bank_match_keys
-    )
-    out = Path(out)
-    # One embedding for the scatters, the marks and the x split, so the groups' centres
-    # and the marks are positions in the same picture.
-    emb = subspace_embeddings(data, seed)
-    figures = plot_tsne(
-        data,
-        out,
-        marks=marks,
-        seed=seed,
-        embeddings=emb,
-        target_later_frames=later,
-        later_frame_stride=stride,
-    )
-    numbers = subspace_numbers(data, seed=seed)
-    centres = mark_positions(emb["shared"], marks, seed) if marks > 0 else None
-    numbers["marks"] = [] if centres is None else centres.tolist()
-    numbers["mark_frames"] = {"target_later_frames": later, "later_frame_stride": stride}
-    if preset.target_task == "Curve":
-        split = write_x_split(
-            data, emb["shared"], out, CURVE_RAMP_LENGTH, groups=x_groups, seed=seed, marks=centres
-        )
-        if split is not None:
-            numbers["x_split"] = split
-            figures.append(out / "fig8_groups.png")
-    atomic_write_json(out / "numbers.json", numbers)
-    return {"figures": [str(p) for p in figures], "numbers": numbers}
-
-
-def bound(
-    pair: str,
-    model_path: Path | str,
-    target_policy: Path | str,
-    *,
-    source_policy: Path | str | None = None,
-    episodes: int = 10,
-    quantile: float = 0.95,
-    gamma: float = 0.99,
-    seed: int = 0,
-) -> dict[str, Any]:
-    """``pved bound``: Theorem 1 and Corollary 1 (paper III.E) estimated on rollouts of the
-    source and the transferred target, beside the measured gaps."""
-    from pved.analysis.bound import theorem1_bound
-
-    torch.set_num_threads(1)
-    check_int("--episodes", episodes, low=1)
-    check_number("--quantile", quantile, low=0.0, high=1.0)
-    check_number("--gamma", gamma, low=0.0, high=1.0)
-    check_seed("--seed", seed)
-    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
-        pair, model_path, target_policy, source_policy
-    )
-    result = theorem1_bound(
-        model,
-        src,
-        tgt,
-        src_id,
-        tgt_id,
-        episodes,
-        seed,
-        quantile=quantile,
-        gamma=gamma,
-        match_keys=preset.bank_match_keys,
-        time_scale=bank_time_scale(preset.pairing.align, env_dt(src_id), env_dt(tgt_id)),
-    )
-    return {"summary": result.summary(), **result.as_dict()}
