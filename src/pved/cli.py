@@ -320,7 +320,7 @@ def _cmd_bound(args: argparse.Namespace) -> None:
 
 def _cmd_audit_shaping(args: argparse.Namespace) -> None:
     from pved.analysis.shaping_audit import audit_pair
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     _print_json(
         audit_pair(
@@ -337,7 +337,7 @@ def _cmd_audit_shaping(args: argparse.Namespace) -> None:
 
 def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
     from pved.analysis.shaping_audit import likelihood_reading
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     _print_json(
         likelihood_reading(
@@ -354,7 +354,7 @@ def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
 def _cmd_video(args: argparse.Namespace) -> None:
     from pved.analysis.video import render_rollout
     from pved.errors import PvedError
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     other = None
     if args.with_policy is not None:
@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     # and names the known ones in a one-line error, so argparse's `choices` is not used)
     from pved.config import BUDGETS, PRESETS
     from pved.envs.registry import AGENTS, TASKS
-    from pved.experiments.stages import REFERENCE_METHODS
+    from pved.experiments.transfer_spec import REFERENCE_METHODS
     from pved.models import MODELS
     from pved.pairing.align import ALIGNMENTS
 

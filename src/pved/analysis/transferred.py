@@ -28,12 +28,12 @@ from pved.checks import check_int, check_number, check_seed, check_writable
 from pved.config import PairPreset, get_preset
 from pved.envs.registry import env_id
 from pved.envs.terrain import CURVE_RAMP_LENGTH
-from pved.experiments.stages import check_model_for, run_file
+from pved.experiments.inputs import check_model_for
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import Policy, load_policy
-from pved.runs import atomic_write_json
+from pved.runs import atomic_write_json, run_file
 from pved.transfer.source_bank import bank_time_scale, env_dt
 
 

@@ -14,10 +14,9 @@ done, or replaced by the user's own data:
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,28 +24,24 @@ import numpy as np
 import torch
 
 from pved import __version__
-from pved.checks import (
-    check_int,
-    check_seed,
-    check_writable,
-    given,
-    named_options,
-)
+from pved.checks import check_int, check_seed, check_writable, given, named_options
 from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import env_id, get_entry
 from pved.errors import OptionError, PvedError
+from pved.experiments.inputs import (
+    DEFAULT_RUNS,
+    check_bank_for,
+    check_model_for,
+    default_dataset_path,
+)
+from pved.experiments.transfer_spec import transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
-from pved.models.base import SharedSpaceModel
-from pved.models.registry import load_model, model_class, save_model
+from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import align as align_steps
-from pved.pairing.collect import (
-    collect_episode_pairs,
-    env_header,
-    pairs_to_dataset,
-)
+from pved.pairing.collect import collect_episode_pairs, env_header, pairs_to_dataset
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pairing.rounds import (
     Embedder,
@@ -58,16 +53,10 @@ from pved.pairing.rounds import (
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
-from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
-from pved.transfer.shaping import (
-    LatentShaping,
-    ShapedBatchedEnv,
-    check_shaping_action,
-    check_shaping_form,
-)
+from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
+from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
-    SourceBank,
     bank_dt,
     bank_time_scale,
     build_source_bank,
@@ -75,64 +64,11 @@ from pved.transfer.source_bank import (
     save_bank,
 )
 
-DEFAULT_RUNS = Path("runs")
-
 
 def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
     """The batched env evaluations run on: at most ``EVAL_NUM_ENVS`` copies, and no more
     copies than episodes (a copy without an episode to run would still be stepped)."""
     return make_batched(env_name, max(1, min(EVAL_NUM_ENVS, episodes)), **kwargs)
-
-
-NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
-ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
-REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
-
-
-def _hash_state(digest: Any, obj: Any) -> None:
-    """Feed a loaded PyTorch state into ``digest`` by value: tensors by dtype, shape and
-    bytes; dicts in key order; each part length-prefixed, so no two states collide by
-    concatenation."""
-
-    def part(tag: bytes, payload: bytes) -> None:
-        digest.update(tag + len(payload).to_bytes(8, "little") + payload)
-
-    if isinstance(obj, torch.Tensor):
-        flat = obj.detach().cpu().contiguous().reshape(-1)
-        part(b"T", f"{flat.dtype}{tuple(obj.shape)}".encode())
-        part(b"B", flat.view(torch.uint8).numpy().tobytes())
-    elif isinstance(obj, dict):
-        part(b"D", str(len(obj)).encode())
-        for key in sorted(obj, key=repr):
-            _hash_state(digest, key)
-            _hash_state(digest, obj[key])
-    elif isinstance(obj, (list, tuple)):
-        part(b"L" if isinstance(obj, list) else b"U", str(len(obj)).encode())
-        for item in obj:
-            _hash_state(digest, item)
-    else:  # str, int, float, bool, None: what a pved state holds besides tensors
-        part(type(obj).__name__.encode(), repr(obj).encode())
-
-
-def file_digest(path: Path) -> str:
-    """Short content hash of an input file, so a changed input invalidates a done stage.
-
-    A PyTorch file (policy, model) is hashed by the state it holds, not by its bytes:
-    ``torch.save`` writes a fresh random serialization id and the temporary file's name
-    into every file, and pickles equal strings differently by object identity, so two
-    saves of one state differ byte for byte. A model retrained bit for bit then keeps
-    the digest its transfer runs were made under."""
-    data = Path(path).read_bytes()
-    if data[:4] == b"PK\x03\x04":  # a zip archive: a PyTorch file, or a numpy .npz
-        try:
-            state = safe_torch_load(Path(path))
-        except PvedError:  # not a PyTorch file: hashed by its bytes
-            pass
-        else:
-            digest = hashlib.sha256(b"pved-torch-state")
-            _hash_state(digest, state)
-            return digest.hexdigest()[:16]
-    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
@@ -427,16 +363,6 @@ def _dtw_fit(preset: PairPreset, header: dict[str, Any], seed: int, progress: bo
     return fit
 
 
-def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
-    return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
-
-
-def default_model_path(
-    pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0
-) -> Path:
-    return run_path(runs_root, pair, "model", model, seed) / "model.pt"
-
-
 def train_model(
     pair: str,
     model: str = "pved",
@@ -573,225 +499,6 @@ def build_bank(
         {"bank": str(out), "episodes": episodes, "success_rate": bank.header["success_rate"]}
     )
     return out
-
-
-def check_model_for(
-    preset: PairPreset,
-    model: SharedSpaceModel,
-    path: Path | str,
-    method: str | None = None,
-    target_robot_state: Sequence[int] | np.ndarray | None = None,
-) -> None:
-    """Refuse, in one line, a model made for another pair: its metadata's pair, agents
-    and robot-state selection of the target (``target_robot_state``: the target env's,
-    when known) against ``preset``'s, its name against ``method`` (when given). A key a
-    model file lacks (one made before the key was written) is not checked."""
-    meta = model.metadata
-    wanted = {
-        "pair": preset.name,
-        "source_agent": preset.source_agent,
-        "target_agent": preset.target_agent,
-    }
-    for key, want in wanted.items():
-        if meta.get(key) not in (None, want):
-            raise PvedError(
-                f"model {path} was trained for another pair: its {key} is {meta[key]!r}, "
-                f"{preset.name}'s is {want!r}"
-            )
-    if method is not None and model.name != method:
-        raise PvedError(f"model {path} is a {model.name!r} model, not {method!r}")
-    have = meta.get("robot_state_indices_target")
-    if have is not None and target_robot_state is not None:
-        if [int(i) for i in have] != [int(i) for i in target_robot_state]:
-            raise PvedError(
-                f"model {path} reads the target's robot state at {list(have)}, "
-                f"the {preset.target_agent} env has it at {list(target_robot_state)}"
-            )
-
-
-def check_bank_for(
-    preset: PairPreset, bank: SourceBank, path: Path | str, model: SharedSpaceModel | None = None
-) -> None:
-    """Refuse, in one line, a source bank made for another pair: its header's env (the
-    pair's source agent on its target task), match keys and robot-state selection (that
-    of ``model``'s source, when given) against the pair's. A key a bank file lacks is not
-    checked."""
-    header = bank.header
-    want_env = env_id(preset.source_agent, preset.target_task)
-    if header.get("env_id") not in (None, want_env):
-        raise PvedError(
-            f"source bank {path} was made on {header['env_id']}, {preset.name}'s is {want_env}"
-        )
-    keys = header.get("match_keys")
-    if keys is not None and list(keys) != list(preset.bank_match_keys):
-        raise PvedError(
-            f"source bank {path} matches on {list(keys)}, {preset.name} on "
-            f"{list(preset.bank_match_keys)}"
-        )
-    have = header.get("robot_state_indices")
-    want = None if model is None else model.metadata.get("robot_state_indices_source")
-    if have is not None and want is not None and list(have) != list(want):
-        raise PvedError(
-            f"source bank {path} holds the source's robot state at {list(have)}, "
-            f"the model reads it at {list(want)}"
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class TransferSpec:
-    """A transfer run resolved from its arguments before anything runs: where it lives,
-    the config its hash is taken of, and what it trains on.
-
-    Attributes:
-        config: the resolved config (``config.json``; its hash decides whether a run
-            directory holds this run).
-        run_dir: ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``.
-        env_id: the target agent's target-task env.
-        ppo: PPO's config (seed, steps and curve interval applied).
-        eval_episodes, final_episodes: episodes per curve point and of the final evaluation.
-        train_env_kwargs: env options of the training env (the oracle's full reward).
-        shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
-        beta: the shaping weight (Eq. 10).
-    """
-
-    config: dict[str, Any]
-    run_dir: Path
-    env_id: str
-    ppo: PPOConfig
-    eval_episodes: int
-    final_episodes: int
-    train_env_kwargs: dict[str, Any]
-    shaping_inputs: tuple[Path, Path] | None
-    beta: float
-    shaping_start: int
-    shaping_form: str
-    shaping_action: str
-
-
-def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
-    """The entries of a shaped transfer run's config that say how Eq. 10 is computed
-    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
-    target action encoded, and the term scaled by the shaped return's std but never
-    clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
-    hashes differ, and a protocol does not take them (``Job.required_config``)."""
-    return {
-        "bank_time": get_preset(pair).pairing.align,
-        "shaping_action": shaping_action,
-        "reward_scaling": "term-scaled-unclipped",
-    }
-
-
-def transfer_spec(
-    pair: str,
-    method: str = "pved",
-    *,
-    seed: int = 20000,
-    model_path: Path | str | None = None,
-    bank_path: Path | str | None = None,
-    steps: int | None = None,
-    beta: float | None = None,
-    eval_every: int | None = None,
-    eval_episodes: int | None = None,
-    final_eval_episodes: int | None = None,
-    runs_root: Path = DEFAULT_RUNS,
-    run_name: str | None = None,
-    shaping_start: int = 0,
-    shaping_form: str = "eq10",
-    shaping_action: str = "mean",
-) -> TransferSpec:
-    """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
-    Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
-    check_shaping_form(shaping_form)  # before any file is looked for
-    check_shaping_action(shaping_action)
-    check_int("--shaping-start", shaping_start, low=0)
-    preset = get_preset(pair)
-    # Every option lands in the transfer and PPO configs, which check their fields (a
-    # negative or NaN beta, a negative count of final episodes): refused here, before a
-    # file is read or a directory made, not after the training.
-    with named_options(
-        beta="--beta",
-        eval_every="--eval-every",
-        eval_episodes="--eval-episodes",
-        final_eval_episodes="--final-eval-episodes",
-        seed="--seed",
-        total_steps="--steps",
-    ):
-        tcfg = dataclasses.replace(
-            preset.transfer,
-            **given(
-                beta=beta,
-                eval_every=eval_every,
-                eval_episodes=eval_episodes,
-                final_eval_episodes=final_eval_episodes,
-            ),
-        )
-        # the learning curve's evaluation interval: the preset's unless given
-        ppo = dataclasses.replace(
-            tcfg.ppo,
-            seed=seed,
-            eval_every=tcfg.eval_every,
-            **given(total_steps=steps),
-        )
-    beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
-    name = env_id(preset.target_agent, preset.target_task)
-    config: dict[str, Any] = {
-        "stage": "transfer",
-        "pair": pair,
-        "method": method,
-        "env_id": name,
-        "ppo": ppo,
-        "eval_episodes": eval_episodes,
-        "final_eval_episodes": final_episodes,
-    }
-    shaping_inputs: tuple[Path, Path] | None = None
-    train_env_kwargs: dict[str, Any] = {}
-    if method == ORACLE:
-        train_env_kwargs = {"reward": "full"}
-        config["train_reward"] = "full"
-    elif method != NO_TRANSFER:
-        model_class(method)  # an unknown method name fails here, before any file check
-        m_path = (
-            run_file(model_path, "model.pt", "model")
-            if model_path
-            else default_model_path(pair, method, runs_root)
-        )
-        b_path = (
-            run_file(bank_path, "bank.npz", "source bank")
-            if bank_path
-            else (
-                run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
-                / "bank.npz"
-            )
-        )
-        for what, p in (("model", m_path), ("source bank", b_path)):
-            if not p.exists():
-                raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
-        shaping_inputs = (m_path, b_path)
-        config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-        config.update(eq10_config(pair, shaping_action))
-        # both only when set, so the runs made before they existed keep their config hashes
-        if shaping_start:
-            config["shaping_start"] = shaping_start
-        if shaping_form != "eq10":
-            config["shaping_form"] = shaping_form
-    if shaping_start and shaping_inputs is None:
-        raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
-    if shaping_form != "eq10" and shaping_inputs is None:
-        raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
-    return TransferSpec(
-        config=config,
-        run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
-        env_id=name,
-        ppo=ppo,
-        eval_episodes=eval_episodes,
-        final_episodes=final_episodes,
-        train_env_kwargs=train_env_kwargs,
-        shaping_inputs=shaping_inputs,
-        beta=beta,
-        shaping_start=shaping_start,
-        shaping_form=shaping_form,
-        shaping_action=shaping_action,
-    )
 
 
 def transfer(
@@ -948,8 +655,6 @@ def preset_summary(preset: PairPreset) -> dict[str, Any]:
 
 __all__ = [
     "build_bank",
-    "check_bank_for",
-    "check_model_for",
     "collect_pairs",
     "evaluate",
     "np",
@@ -957,15 +662,3 @@ __all__ = [
     "train_policy",
     "transfer",
 ]
-
-
-def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
-    """``path`` itself, or ``path/name`` when ``path`` is a run directory (a stage's
-    ``model.pt``, ``bank.npz``, ``pairs.npz``, ``policy.pt``); :class:`PvedError` naming
-    ``what`` (default: ``name``) when there is no such file."""
-    path = Path(path)
-    resolved = path / name if path.is_dir() else path
-    if not resolved.is_file():
-        where = f"{path} (a directory without {name})" if path.is_dir() else str(path)
-        raise PvedError(f"{what or name} not found: {where}")
-    return resolved
