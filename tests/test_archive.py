@@ -20,7 +20,8 @@ from pved.analysis.curves import read_eval_points
 from pved.errors import PvedError
 from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
-from pved.experiments.stages import transfer, transfer_spec
+from pved.experiments.stages import transfer
+from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import RESTORED_FROM, Run, atomic_write_json
 
 

@@ -138,7 +138,7 @@ def _no_work(what: str) -> Any:
         (["video", "--policy", str(POLICY), "--env", "pved/Reacher3Push-v0",
           "--out", "{x}/v.gif"], "pved.analysis.video._rollout_frames", "--out"),
         (["tsne", "--model", "{model}", "--target-policy", str(POLICY), "--out", "{x}"],
-         "pved.analysis.tsne.embed_rollouts", "--out"),
+         "pved.analysis.transferred.embed_rollouts", "--out"),
         (["audit-shaping", "--model", "{model}", "--bank", "{bank}", "--out", "{x}/a.json"],
          "pved.analysis.shaping_audit.audit_transfer_start", "--out"),
         (["audit-likelihood", "--dataset", "{dataset}", "--runs", "{x}"],

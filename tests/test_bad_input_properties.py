@@ -24,6 +24,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pved.analysis import transferred
 from pved.cli import main
 from pved.errors import PvedError
 from pved.experiments import stages
@@ -185,8 +186,8 @@ WORK = (
     "pved.experiments.stages.fit_model",
     "pved.experiments.stages.build_source_bank",
     "pved.experiments.stages.evaluate_policy",
-    "pved.analysis.tsne.embed_rollouts",
-    "pved.analysis.bound.theorem1_bound",
+    "pved.analysis.transferred.embed_rollouts",
+    "pved.analysis.transferred.theorem1_bound",
     "pved.analysis.shaping_audit.audit_transfer_start",
     "pved.analysis.video._rollout_frames",
     "pved.models.train.train_model",
@@ -260,7 +261,7 @@ API: list[tuple[Callable[..., Any], tuple[Any, ...], str, str, Kind]] = [
     (stages.evaluate, (POLICY, "pved/Reacher3Push-v0"), a, o, k)
     for a, o, k in (("episodes", "--episodes", COUNT), ("seed", "--seed", SEED))
 ] + [
-    (stages.bound, ("reacher", POLICY, POLICY), a, o, k)
+    (transferred.bound, ("reacher", POLICY, POLICY), a, o, k)
     for a, o, k in (("episodes", "--episodes", COUNT), ("quantile", "--quantile", UNIT),
                     ("gamma", "--gamma", UNIT), ("seed", "--seed", SEED))
 ]  # fmt: skip
@@ -274,7 +275,7 @@ def test_every_stage_function_refuses_a_bad_argument_naming_its_option(
     fn, args, name, option, kind = case
     value = data.draw(bad_python_values(kind), label=name)
     with empty_directory() as tmp:
-        runs = {"runs_root": tmp / "r"} if fn not in (stages.evaluate, stages.bound) else {}
+        runs = {"runs_root": tmp / "r"} if fn not in (stages.evaluate, transferred.bound) else {}
         with pytest.raises(PvedError) as caught:
             fn(*args, **runs, **{name: value})
         message = str(caught.value)

@@ -27,7 +27,8 @@ from pved.experiments.batch import (
     release_batch,
 )
 from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
-from pved.experiments.stages import transfer, transfer_spec
+from pved.experiments.stages import transfer
+from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import Run, atomic_write_json, claim_holder, write_claim
 
 

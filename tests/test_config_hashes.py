@@ -3,7 +3,7 @@ protocol runs are matched, by the hash of its resolved config (``pved.runs.Run``
 values were computed at commit 4fc9087, before options were checked by type and range
 and before checkpoints by time; a change to what goes into a config must not move them.
 The shaped runs' pins are those of 1bc0bb8, where Eq. 10's reward scaling took its final
-form (``stages.eq10_config``: the env part clipped, the term never), which moved them on
+form (``transfer_spec.eq10_config``: the env part clipped, the term never), which moved them on
 purpose: shaped runs made before compute otherwise and must not be taken for these.
 """
 

@@ -232,7 +232,7 @@ def test_report_embeds_every_image_and_the_numbers(tmp_path: Path) -> None:
 
 
 def test_bound_json_and_printed_line_agree(tmp_path: Path) -> None:
-    """The bound from a JSON of stages.bound's result and from the printed line."""
+    """The bound from a JSON of transferred.bound's result and from the printed line."""
     b = _bound_result()
     _json(tmp_path / "j" / "bound.json", {"summary": b.summary(), **b.as_dict()})
     (tmp_path / "t").mkdir()

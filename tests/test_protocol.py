@@ -29,7 +29,7 @@ from pved.experiments.protocol import (
     transfer_run_name,
 )
 from pved.experiments.runner import Job, resolve_backend, run_jobs
-from pved.experiments.stages import transfer_spec
+from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 
 PVED = [sys.executable, "-m", "pved.cli"]
@@ -1238,7 +1238,7 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     # as it is now (bank time base, mean action, unclipped scaled reward): else it is made again.
     from pved.experiments.protocol import _finished_results
     from pved.experiments.runner import read_job_result
-    from pved.experiments.stages import eq10_config
+    from pved.experiments.transfer_spec import eq10_config
 
     plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", tmp_path)
     jobs = plan.expand({})

@@ -103,8 +103,7 @@ def test_atomic_writes_are_readable_by_others(tmp_path: Path) -> None:
 
 
 def test_file_digest_names_a_pytorch_files_state_not_its_bytes(tmp_path: Path) -> None:
-    from pved.experiments.stages import file_digest
-    from pved.runs import atomic_torch_save
+    from pved.runs import atomic_torch_save, file_digest
 
     name = "pved"
     state = {"weights": torch.arange(6.0).reshape(2, 3), "name": name, "meta": {"model": name}}

@@ -16,7 +16,7 @@ from helpers import assert_ppo_resumes_exactly
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
-from pved.experiments.stages import transfer_spec
+from pved.experiments.transfer_spec import transfer_spec
 from pved.models import PVED, ModelDims, PVEDConfig
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy

@@ -13,5 +13,8 @@ from pved.blas import pin_portable_kernels
 
 pin_portable_kernels()
 
-# Registers the Gymnasium ids; the simulator modules themselves load on first use.
-import pved.envs  # noqa: E402, F401
+# Registers the Gymnasium ids from the catalogue alone: neither pved.envs nor the
+# simulator load until an env is made, so `import pved.models` stays free of them.
+from pved.env_ids import register_envs  # noqa: E402
+
+register_envs()

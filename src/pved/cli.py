@@ -287,7 +287,7 @@ def _cmd_claims(args: argparse.Namespace) -> None:
 
 
 def _cmd_tsne(args: argparse.Namespace) -> None:
-    from pved.experiments.stages import analyze_subspaces
+    from pved.analysis.transferred import analyze_subspaces
 
     result = analyze_subspaces(
         args.pair,
@@ -306,7 +306,7 @@ def _cmd_tsne(args: argparse.Namespace) -> None:
 
 
 def _cmd_bound(args: argparse.Namespace) -> None:
-    from pved.experiments.stages import bound
+    from pved.analysis.transferred import bound
 
     result = bound(
         args.pair,
@@ -323,7 +323,7 @@ def _cmd_bound(args: argparse.Namespace) -> None:
 
 def _cmd_audit_shaping(args: argparse.Namespace) -> None:
     from pved.analysis.shaping_audit import audit_pair
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     _print_json(
         audit_pair(
@@ -340,7 +340,7 @@ def _cmd_audit_shaping(args: argparse.Namespace) -> None:
 
 def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
     from pved.analysis.shaping_audit import likelihood_reading
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     _print_json(
         likelihood_reading(
@@ -357,7 +357,7 @@ def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
 def _cmd_video(args: argparse.Namespace) -> None:
     from pved.analysis.video import render_rollout
     from pved.errors import PvedError
-    from pved.experiments.stages import run_file
+    from pved.runs import run_file
 
     other = None
     if args.with_policy is not None:

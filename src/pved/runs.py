@@ -57,6 +57,52 @@ def config_hash(config: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _hash_state(digest: Any, obj: Any) -> None:
+    """Feed a loaded PyTorch state into ``digest`` by value: tensors by dtype, shape and
+    bytes; dicts in key order; each part length-prefixed, so no two states collide by
+    concatenation."""
+
+    def part(tag: bytes, payload: bytes) -> None:
+        digest.update(tag + len(payload).to_bytes(8, "little") + payload)
+
+    if isinstance(obj, torch.Tensor):
+        flat = obj.detach().cpu().contiguous().reshape(-1)
+        part(b"T", f"{flat.dtype}{tuple(obj.shape)}".encode())
+        part(b"B", flat.view(torch.uint8).numpy().tobytes())
+    elif isinstance(obj, dict):
+        part(b"D", str(len(obj)).encode())
+        for key in sorted(obj, key=repr):
+            _hash_state(digest, key)
+            _hash_state(digest, obj[key])
+    elif isinstance(obj, (list, tuple)):
+        part(b"L" if isinstance(obj, list) else b"U", str(len(obj)).encode())
+        for item in obj:
+            _hash_state(digest, item)
+    else:  # str, int, float, bool, None: what a pved state holds besides tensors
+        part(type(obj).__name__.encode(), repr(obj).encode())
+
+
+def file_digest(path: Path) -> str:
+    """Short content hash of an input file, so a changed input invalidates a done stage.
+
+    A PyTorch file (policy, model) is hashed by the state it holds, not by its bytes:
+    ``torch.save`` writes a fresh random serialization id and the temporary file's name
+    into every file, and pickles equal strings differently by object identity, so two
+    saves of one state differ byte for byte. A model retrained bit for bit then keeps
+    the digest its transfer runs were made under."""
+    data = Path(path).read_bytes()
+    if data[:4] == b"PK\x03\x04":  # a zip archive: a PyTorch file, or a numpy .npz
+        try:
+            state = safe_torch_load(Path(path))
+        except PvedError:  # not a PyTorch file: hashed by its bytes
+            pass
+        else:
+            digest = hashlib.sha256(b"pved-torch-state")
+            _hash_state(digest, state)
+            return digest.hexdigest()[:16]
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
 def _read_git_commit() -> str | None:
     """HEAD of the git checkout this file lies in (None outside one, or without git)."""
     try:
@@ -248,6 +294,18 @@ def last_logged_step(run_dir: Path) -> int:
 def run_path(root: Path | str, pair: str, stage: str, name: str, seed: int) -> Path:
     """``<root>/<pair>/<stage>/<name>/seed<k>``."""
     return Path(root) / pair / stage / name / f"seed{seed}"
+
+
+def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
+    """``path`` itself, or ``path/name`` when ``path`` is a run directory (a stage's
+    ``model.pt``, ``bank.npz``, ``pairs.npz``, ``policy.pt``); :class:`PvedError` naming
+    ``what`` (default: ``name``) when there is no such file."""
+    path = Path(path)
+    resolved = path / name if path.is_dir() else path
+    if not resolved.is_file():
+        where = f"{path} (a directory without {name})" if path.is_dir() else str(path)
+        raise PvedError(f"{what or name} not found: {where}")
+    return resolved
 
 
 class Run:

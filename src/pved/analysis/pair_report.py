@@ -370,7 +370,7 @@ def _add_tsne(directory: Path, parts: _Parts) -> None:
 
 
 def _parse_bound(path: Path, pair: str) -> tuple[dict[str, Any], bool] | None:
-    """A bound from ``path``: a JSON object with :data:`BOUND_KEYS` (``stages.bound``'s
+    """A bound from ``path``: a JSON object with :data:`BOUND_KEYS` (``transferred.bound``'s
     return value or ``BoundResult.as_dict()``), or text holding the line ``pved bound``
     prints. Returns ``(values, parsed_from_text)``, or None when it is neither."""
     try:

@@ -51,7 +51,7 @@ from pved.analysis.claims import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.config import get_preset
 from pved.errors import PvedError
-from pved.experiments.stages import default_dataset_path, default_model_path
+from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model

@@ -245,7 +245,7 @@ def audit_pair(
     atomically) when given."""
     from pved.config import get_preset
     from pved.envs import env_id
-    from pved.experiments.stages import check_bank_for, check_model_for
+    from pved.experiments.inputs import check_bank_for, check_model_for
     from pved.models import load_model
     from pved.runs import atomic_write_json
     from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank

@@ -1,9 +1,9 @@
 """pved.envs: MuJoCo environments in two forms (batched and ``gymnasium.Env``).
 
-Importing this package registers every ``pved/<Agent><Task>-v0`` id with Gymnasium.
-``make(env_id, **kwargs)`` builds the Gymnasium form, ``make_batched(env_id, num_envs,
-**kwargs)`` the batched one; ``AGENTS``, ``TASKS`` and ``env_id(agent, task)`` list and
-name what exists.
+``import pved`` registers every ``pved/<Agent><Task>-v0`` id with Gymnasium, from the
+catalogue (:mod:`pved.env_ids`) without this package. ``make(env_id, **kwargs)`` builds
+the Gymnasium form, ``make_batched(env_id, num_envs, **kwargs)`` the batched one;
+``AGENTS``, ``TASKS`` and ``env_id(agent, task)`` list and name what exists.
 """
 
 from pved.envs.base import BatchedEnv
@@ -19,8 +19,6 @@ from pved.envs.registry import (
     register_envs,
     registered_env_ids,
 )
-
-register_envs()
 
 __all__ = [
     "AGENTS",

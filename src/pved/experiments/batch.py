@@ -46,11 +46,13 @@ from pved.checks import check_int, check_number, check_writable
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results
 from pved.experiments.runner import WORKER_ENV, _environment, _one_line
-from pved.experiments.stages import file_digest, transfer, transfer_spec
+from pved.experiments.stages import transfer
+from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import (
     atomic_write_json,
     claim_holder,
     config_hash,
+    file_digest,
     release_claim,
     repoint_result,
     write_claim,

@@ -47,6 +47,7 @@ from pved import __version__
 from pved.checks import check_int, check_writable
 from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
 from pved.errors import PvedError
+from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.experiments.runner import (
     Job,
     RunnerReport,
@@ -55,16 +56,8 @@ from pved.experiments.runner import (
     resolve_backend,
     run_jobs,
 )
-from pved.experiments.stages import (
-    build_bank,
-    collect_pairs,
-    default_dataset_path,
-    default_model_path,
-    eq10_config,
-    train_model,
-    train_policy,
-    transfer,
-)
+from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
+from pved.experiments.transfer_spec import eq10_config
 from pved.models.train import shared_subspace_collapsed
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path

@@ -14,10 +14,9 @@ done, or replaced by the user's own data:
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,114 +24,52 @@ import numpy as np
 import torch
 
 from pved import __version__
-from pved.checks import (
-    check_int,
-    check_number,
-    check_seed,
-    check_writable,
-    given,
-    named_options,
-)
+from pved.checks import check_int, check_seed, check_writable, given, named_options
 from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import env_id, get_entry
 from pved.errors import OptionError, PvedError
+from pved.experiments.inputs import (
+    DEFAULT_RUNS,
+    check_bank_for,
+    check_model_for,
+    default_dataset_path,
+)
+from pved.experiments.transfer_spec import transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
-from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
-from pved.pairing.align import (
-    LEARNED_ALIGNMENTS,
-    PHASE_WINDOW,
-    dtw_indices,
-    first_component,
-    gait_phase,
-    phase_indices,
-)
 from pved.pairing.align import align as align_steps
-from pved.pairing.collect import (
-    EpisodePair,
-    collect_episode_pairs,
-    env_header,
-    pairs_to_dataset,
-)
+from pved.pairing.collect import collect_episode_pairs, env_header, pairs_to_dataset
 from pved.pairing.dataset import load_dataset, save_dataset
+from pved.pairing.rounds import (
+    Embedder,
+    SharedFit,
+    base_alignment,
+    dtw_rounds,
+    phase_alignment,
+)
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
-from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
+from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
+from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import (
-    LatentShaping,
-    ShapedBatchedEnv,
-    check_shaping_action,
-    check_shaping_form,
-)
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
-    SourceBank,
     bank_dt,
     bank_time_scale,
     build_source_bank,
-    env_dt,
     load_bank,
     save_bank,
 )
-
-DEFAULT_RUNS = Path("runs")
 
 
 def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
     """The batched env evaluations run on: at most ``EVAL_NUM_ENVS`` copies, and no more
     copies than episodes (a copy without an episode to run would still be stepped)."""
     return make_batched(env_name, max(1, min(EVAL_NUM_ENVS, episodes)), **kwargs)
-
-
-def _hash_state(digest: Any, obj: Any) -> None:
-    """Feed a loaded PyTorch state into ``digest`` by value: tensors by dtype, shape and
-    bytes; dicts in key order; each part length-prefixed, so no two states collide by
-    concatenation."""
-
-    def part(tag: bytes, payload: bytes) -> None:
-        digest.update(tag + len(payload).to_bytes(8, "little") + payload)
-
-    if isinstance(obj, torch.Tensor):
-        flat = obj.detach().cpu().contiguous().reshape(-1)
-        part(b"T", f"{flat.dtype}{tuple(obj.shape)}".encode())
-        part(b"B", flat.view(torch.uint8).numpy().tobytes())
-    elif isinstance(obj, dict):
-        part(b"D", str(len(obj)).encode())
-        for key in sorted(obj, key=repr):
-            _hash_state(digest, key)
-            _hash_state(digest, obj[key])
-    elif isinstance(obj, (list, tuple)):
-        part(b"L" if isinstance(obj, list) else b"U", str(len(obj)).encode())
-        for item in obj:
-            _hash_state(digest, item)
-    else:  # str, int, float, bool, None: what a pved state holds besides tensors
-        part(type(obj).__name__.encode(), repr(obj).encode())
-
-
-def file_digest(path: Path) -> str:
-    """Short content hash of an input file, so a changed input invalidates a done stage.
-
-    A PyTorch file (policy, model) is hashed by the state it holds, not by its bytes:
-    ``torch.save`` writes a fresh random serialization id and the temporary file's name
-    into every file, and pickles equal strings differently by object identity, so two
-    saves of one state differ byte for byte. A model retrained bit for bit then keeps
-    the digest its transfer runs were made under."""
-    data = Path(path).read_bytes()
-    if data[:4] == b"PK\x03\x04":  # a zip archive: a PyTorch file, or a numpy .npz
-        try:
-            state = safe_torch_load(Path(path))
-        except PvedError:  # not a PyTorch file: hashed by its bytes
-            pass
-        else:
-            digest = hashlib.sha256(b"pved-torch-state")
-            _hash_state(digest, state)
-            return digest.hexdigest()[:16]
-    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
@@ -372,20 +309,15 @@ def collect_pairs(
     # control periods, for alignment by physical time (None for envs without one)
     dt_s, dt_t = getattr(src_env, "dt", None), getattr(tgt_env, "dt", None)
     header.update(dt_source=dt_s, dt_target=dt_t)
-    if align in LEARNED_ALIGNMENTS:
-        time_only = "subsample"
-    elif align == "phase":  # re-paired by phase around the same moment
-        time_only = "time" if dt_s is not None and dt_t is not None else "subsample"
-    else:
-        time_only = align
+    time_only = base_alignment(align, dt_s, dt_t)
     alignment = [
         align_steps(time_only, len(e_s.obs), len(e_t.obs), dt_s, dt_t) for e_s, e_t in pairs
     ]
     if align == "dtw":
-        alignment, rounds = _dtw_rounds(preset, pairs, alignment, header, seed, progress)
-        header["dtw"] = rounds
+        fit = _dtw_fit(preset, header, seed, progress)
+        alignment, header["dtw"] = dtw_rounds(pairs, alignment, header, cfg.dtw_rounds, fit)
     if align == "phase":
-        alignment, header["phase"] = _phase_alignment(pairs, alignment, header)
+        alignment, header["phase"] = phase_alignment(pairs, alignment, header)
         header["phase"]["base"] = time_only
     dataset = pairs_to_dataset(pairs, alignment, shared_task_keys=shared_task_keys, header=header)
     save_dataset(out, dataset)
@@ -407,107 +339,29 @@ def collect_pairs(
     return out
 
 
-def _model_rows(pairs: list[EpisodePair], header: dict[str, Any]) -> list[np.ndarray]:
-    """Per episode pair, the model inputs ``[robot state, action]`` of both agents."""
-    idx_s = np.asarray(header["robot_state_indices_source"])
-    idx_t = np.asarray(header["robot_state_indices_target"])
-    rows = []
-    for e_s, e_t in pairs:
-        rows.append(np.concatenate([e_s.obs[:, idx_s], e_s.act], 1).astype(np.float32))
-        rows.append(np.concatenate([e_t.obs[:, idx_t], e_t.act], 1).astype(np.float32))
-    return rows
-
-
-def _dtw_rounds(
-    preset: PairPreset,
-    pairs: list[EpisodePair],
-    alignment: list[tuple[np.ndarray, np.ndarray]],
-    header: dict[str, Any],
-    seed: int,
-    progress: bool,
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[dict[str, float]]]:
-    """Gupta et al. (2017)'s alternation: train the pair's model on the current
-    alignment, re-align each episode pair by DTW on the two agents' shared means, repeat
-    ``dtw_rounds`` times. Returns the last alignment and per-round statistics (how many
-    rows changed partner, the model's validation loss)."""
+def _dtw_fit(preset: PairPreset, header: dict[str, Any], seed: int, progress: bool) -> SharedFit:
+    """What a DTW round trains (:func:`pved.pairing.rounds.dtw_rounds`): the pair's
+    ``dtw_model`` for ``dtw_epochs`` on the aligned rows, returned as its embedder of
+    both agents' rows into their shared means."""
     cfg = preset.pairing
     config = preset.model_config(cfg.dtw_model, seed=seed, epochs=cfg.dtw_epochs)
-    rows = _model_rows(pairs, header)
     state_dims = (
         len(header["robot_state_indices_source"]),
         len(header["robot_state_indices_target"]),
     )
-    stats: list[dict[str, float]] = []
-    for round_index in range(cfg.dtw_rounds):
-        data = pairs_to_dataset(pairs, alignment, shared_task_keys=(), header=header)
-        x_s, x_t = data.model_inputs()
+
+    def fit(x_s: np.ndarray, x_t: np.ndarray) -> Embedder:
         model = fit_model(cfg.dtw_model, x_s, x_t, config, state_dims=state_dims, progress=progress)
-        new_alignment = []
-        with torch.no_grad():
-            for e in range(len(pairs)):
-                emb_s = model.shared_source(torch.as_tensor(rows[2 * e])).mean.numpy()
-                emb_t = model.shared_target(torch.as_tensor(rows[2 * e + 1])).mean.numpy()
-                new_alignment.append(dtw_indices(emb_s, emb_t))
-        changed = [
-            float(
-                np.mean(_partner(old, len(pairs[e][0].obs)) != _partner(new, len(pairs[e][0].obs)))
-            )
-            for e, (old, new) in enumerate(zip(alignment, new_alignment, strict=True))
-        ]
-        stats.append({"round": float(round_index + 1), "moved_fraction": float(np.mean(changed))})
-        alignment = new_alignment
-    return alignment, stats
 
+        def embed(rows_s: np.ndarray, rows_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with torch.no_grad():
+                emb_s = model.shared_source(torch.as_tensor(rows_s)).mean.numpy()
+                emb_t = model.shared_target(torch.as_tensor(rows_t)).mean.numpy()
+            return emb_s, emb_t
 
-def _phase_alignment(
-    pairs: list[EpisodePair],
-    alignment: list[tuple[np.ndarray, np.ndarray]],
-    header: dict[str, Any],
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
-    """Re-pair every episode pair of the time alignment by gait phase
-    (:func:`pved.pairing.align.phase_indices`). Each agent's gait signal is the first
-    principal component of its robot state, standardised over all its episodes' steps;
-    its phase is taken per episode. Returns the new alignment and what it did: the share
-    of the components' variance, and how far (in source steps) a pair's source step moved
-    (mean, and the share of pairs that moved)."""
-    stats: dict[str, Any] = {"window": PHASE_WINDOW}
-    phases: dict[str, list[np.ndarray]] = {}
-    for side, key, column in (("source", "robot_state_indices_source", 0),
-                              ("target", "robot_state_indices_target", 1)):  # fmt: skip
-        idx = np.asarray(header[key])
-        states = [np.asarray(pair[column].obs, dtype=np.float64)[:, idx] for pair in pairs]
-        mean, scale, direction, share = first_component(np.concatenate(states))
-        stats[f"pc1_variance_{side}"] = share
-        phases[side] = [gait_phase(((x - mean) / scale) @ direction) for x in states]
-    new_alignment = [
-        phase_indices(phases["source"][e], phases["target"][e], base)
-        for e, base in enumerate(alignment)
-    ]
-    moved = np.concatenate(
-        [np.abs(new[0] - old[0]) for old, new in zip(alignment, new_alignment, strict=True)]
-    )
-    stats["moved_fraction"] = float(np.mean(moved > 0))
-    stats["mean_source_steps_moved"] = float(moved.mean())
-    return new_alignment, stats
+        return embed
 
-
-def _partner(alignment: tuple[np.ndarray, np.ndarray], length_source: int) -> np.ndarray:
-    """For each source step, the mean target step it is paired with (NaN if unpaired)."""
-    i_s, i_t = alignment
-    total = np.bincount(i_s, weights=i_t, minlength=length_source)
-    count = np.bincount(i_s, minlength=length_source)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
-
-
-def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
-    return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
-
-
-def default_model_path(
-    pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0
-) -> Path:
-    return run_path(runs_root, pair, "model", model, seed) / "model.pt"
+    return fit
 
 
 def train_model(
@@ -646,226 +500,6 @@ def build_bank(
         {"bank": str(out), "episodes": episodes, "success_rate": bank.header["success_rate"]}
     )
     return out
-
-
-def check_model_for(
-    preset: PairPreset,
-    model: SharedSpaceModel,
-    path: Path | str,
-    method: str | None = None,
-    target_robot_state: Sequence[int] | np.ndarray | None = None,
-) -> None:
-    """Refuse, in one line, a model made for another pair: its metadata's pair, agents
-    and robot-state selection of the target (``target_robot_state``: the target env's,
-    when known) against ``preset``'s, its name against ``method`` (when given). A key a
-    model file lacks (one made before the key was written) is not checked."""
-    meta = model.metadata
-    wanted = {
-        "pair": preset.name,
-        "source_agent": preset.source_agent,
-        "target_agent": preset.target_agent,
-    }
-    for key, want in wanted.items():
-        if meta.get(key) not in (None, want):
-            raise PvedError(
-                f"model {path} was trained for another pair: its {key} is {meta[key]!r}, "
-                f"{preset.name}'s is {want!r}"
-            )
-    if method is not None and model.name != method:
-        raise PvedError(f"model {path} is a {model.name!r} model, not {method!r}")
-    have = meta.get("robot_state_indices_target")
-    if have is not None and target_robot_state is not None:
-        if [int(i) for i in have] != [int(i) for i in target_robot_state]:
-            raise PvedError(
-                f"model {path} reads the target's robot state at {list(have)}, "
-                f"the {preset.target_agent} env has it at {list(target_robot_state)}"
-            )
-
-
-def check_bank_for(
-    preset: PairPreset, bank: SourceBank, path: Path | str, model: SharedSpaceModel | None = None
-) -> None:
-    """Refuse, in one line, a source bank made for another pair: its header's env (the
-    pair's source agent on its target task), match keys and robot-state selection (that
-    of ``model``'s source, when given) against the pair's. A key a bank file lacks is not
-    checked."""
-    header = bank.header
-    want_env = env_id(preset.source_agent, preset.target_task)
-    if header.get("env_id") not in (None, want_env):
-        raise PvedError(
-            f"source bank {path} was made on {header['env_id']}, {preset.name}'s is {want_env}"
-        )
-    keys = header.get("match_keys")
-    if keys is not None and list(keys) != list(preset.bank_match_keys):
-        raise PvedError(
-            f"source bank {path} matches on {list(keys)}, {preset.name} on "
-            f"{list(preset.bank_match_keys)}"
-        )
-    have = header.get("robot_state_indices")
-    want = None if model is None else model.metadata.get("robot_state_indices_source")
-    if have is not None and want is not None and list(have) != list(want):
-        raise PvedError(
-            f"source bank {path} holds the source's robot state at {list(have)}, "
-            f"the model reads it at {list(want)}"
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class TransferSpec:
-    """A transfer run resolved from its arguments before anything runs: where it lives,
-    the config its hash is taken of, and what it trains on.
-
-    Attributes:
-        config: the resolved config (``config.json``; its hash decides whether a run
-            directory holds this run).
-        run_dir: ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``.
-        env_id: the target agent's target-task env.
-        ppo: PPO's config (seed, steps and curve interval applied).
-        eval_episodes, final_episodes: episodes per curve point and of the final evaluation.
-        train_env_kwargs: env options of the training env (the oracle's full reward).
-        shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
-        beta: the shaping weight (Eq. 10).
-    """
-
-    config: dict[str, Any]
-    run_dir: Path
-    env_id: str
-    ppo: PPOConfig
-    eval_episodes: int
-    final_episodes: int
-    train_env_kwargs: dict[str, Any]
-    shaping_inputs: tuple[Path, Path] | None
-    beta: float
-    shaping_start: int
-    shaping_form: str
-    shaping_action: str
-
-
-def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
-    """The entries of a shaped transfer run's config that say how Eq. 10 is computed
-    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
-    target action encoded, and the term scaled by the shaped return's std but never
-    clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
-    hashes differ, and a protocol does not take them (``Job.required_config``)."""
-    return {
-        "bank_time": get_preset(pair).pairing.align,
-        "shaping_action": shaping_action,
-        "reward_scaling": "term-scaled-unclipped",
-    }
-
-
-def transfer_spec(
-    pair: str,
-    method: str = "pved",
-    *,
-    seed: int = 20000,
-    model_path: Path | str | None = None,
-    bank_path: Path | str | None = None,
-    steps: int | None = None,
-    beta: float | None = None,
-    eval_every: int | None = None,
-    eval_episodes: int | None = None,
-    final_eval_episodes: int | None = None,
-    runs_root: Path = DEFAULT_RUNS,
-    run_name: str | None = None,
-    shaping_start: int = 0,
-    shaping_form: str | None = None,
-    shaping_action: str = "mean",
-) -> TransferSpec:
-    """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
-    Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
-    recipe = get_method(method)  # an unknown method name fails here, before any file check
-    shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
-    check_shaping_form(shaping_form)
-    check_shaping_action(shaping_action)
-    check_int("--shaping-start", shaping_start, low=0)
-    preset = get_preset(pair)
-    # Every option lands in the transfer and PPO configs, which check their fields (a
-    # negative or NaN beta, a negative count of final episodes): refused here, before a
-    # file is read or a directory made, not after the training.
-    with named_options(
-        beta="--beta",
-        eval_every="--eval-every",
-        eval_episodes="--eval-episodes",
-        final_eval_episodes="--final-eval-episodes",
-        seed="--seed",
-        total_steps="--steps",
-    ):
-        tcfg = dataclasses.replace(
-            preset.transfer,
-            **given(
-                beta=beta,
-                eval_every=eval_every,
-                eval_episodes=eval_episodes,
-                final_eval_episodes=final_eval_episodes,
-            ),
-        )
-        # the learning curve's evaluation interval: the preset's unless given
-        ppo = dataclasses.replace(
-            tcfg.ppo,
-            seed=seed,
-            eval_every=tcfg.eval_every,
-            **given(total_steps=steps),
-        )
-    beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
-    name = env_id(preset.target_agent, preset.target_task)
-    config: dict[str, Any] = {
-        "stage": "transfer",
-        "pair": pair,
-        "method": method,
-        "env_id": name,
-        "ppo": ppo,
-        "eval_episodes": eval_episodes,
-        "final_eval_episodes": final_episodes,
-    }
-    shaping_inputs: tuple[Path, Path] | None = None
-    train_env_kwargs: dict[str, Any] = {}
-    if recipe.train_reward == "full":
-        train_env_kwargs = {"reward": "full"}
-        config["train_reward"] = "full"
-    if recipe.model is not None:
-        m_path = (
-            run_file(model_path, "model.pt", "model")
-            if model_path
-            else default_model_path(pair, recipe.model, runs_root)
-        )
-        b_path = (
-            run_file(bank_path, "bank.npz", "source bank")
-            if bank_path
-            else (
-                run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
-                / "bank.npz"
-            )
-        )
-        for what, p in (("model", m_path), ("source bank", b_path)):
-            if not p.exists():
-                raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
-        shaping_inputs = (m_path, b_path)
-        config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-        config.update(eq10_config(pair, shaping_action))
-        # both only when set, so the runs made before they existed keep their config hashes
-        if shaping_start:
-            config["shaping_start"] = shaping_start
-        if shaping_form != "eq10":
-            config["shaping_form"] = shaping_form
-    if shaping_start and shaping_inputs is None:
-        raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
-    if shaping_form != "eq10" and shaping_inputs is None:
-        raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
-    return TransferSpec(
-        config=config,
-        run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
-        env_id=name,
-        ppo=ppo,
-        eval_episodes=eval_episodes,
-        final_episodes=final_episodes,
-        train_env_kwargs=train_env_kwargs,
-        shaping_inputs=shaping_inputs,
-        beta=beta,
-        shaping_start=shaping_start,
-        shaping_form=shaping_form,
-        shaping_action=shaping_action,
-    )
 
 
 def transfer(
@@ -1027,8 +661,6 @@ def preset_summary(preset: PairPreset) -> dict[str, Any]:
 
 __all__ = [
     "build_bank",
-    "check_bank_for",
-    "check_model_for",
     "collect_pairs",
     "evaluate",
     "np",
@@ -1036,170 +668,3 @@ __all__ = [
     "train_policy",
     "transfer",
 ]
-
-
-# ---------------------------------------------------------------------------- analysis
-def run_file(path: Path | str, name: str, what: str | None = None) -> Path:
-    """``path`` itself, or ``path/name`` when ``path`` is a run directory (a stage's
-    ``model.pt``, ``bank.npz``, ``pairs.npz``, ``policy.pt``); :class:`PvedError` naming
-    ``what`` (default: ``name``) when there is no such file."""
-    path = Path(path)
-    resolved = path / name if path.is_dir() else path
-    if not resolved.is_file():
-        where = f"{path} (a directory without {name})" if path.is_dir() else str(path)
-        raise PvedError(f"{what or name} not found: {where}")
-    return resolved
-
-
-def _analysis_inputs(
-    pair: str, model_path: Path | str, target_policy: Path | str, source_policy: Path | str | None
-) -> tuple[PairPreset, SharedSpaceModel, Policy, Policy, str, str]:
-    preset = get_preset(pair)
-    model = load_model(run_file(model_path, "model.pt"))
-    check_model_for(preset, model, model_path)
-    src = load_policy(
-        pretrained_policy_path(preset.source_agent, preset.target_task)
-        if source_policy is None
-        else run_file(source_policy, "policy.pt")
-    )
-    tgt = load_policy(run_file(target_policy, "policy.pt"))
-    return (
-        preset,
-        model,
-        src,
-        tgt,
-        env_id(preset.source_agent, preset.target_task),
-        env_id(preset.target_agent, preset.target_task),
-    )
-
-
-def analyze_subspaces(
-    pair: str,
-    model_path: Path | str,
-    target_policy: Path | str,
-    out: Path | str,
-    *,
-    source_policy: Path | str | None = None,
-    episodes: int = 6,
-    marks: int = 4,
-    seed: int = 0,
-    target_later_frames: int | None = None,
-    later_frame_stride: int | None = None,
-    x_groups: int = 2,
-) -> dict[str, Any]:
-    """``pved tsne``: t-SNE of both agents' shared and individual posterior means along
-    target-task rollouts (paper IV.C, Figs. 4–7), frames nearest to marks, and the numbers
-    beside them (time correspondence, agent-identity probes) in ``out/numbers.json``.
-
-    For Humanoid → Ant also the paper's Fig. 7 and Fig. 8 additions:
-
-    * ``target_later_frames`` later target frames per mark, ``later_frame_stride`` control
-      steps apart (None: :func:`pved.analysis.tsne.default_later_frames` of the pair's
-      target agent, 2 for Ant, and ``DEFAULT_LATER_FRAME_STRIDE``);
-    * on Curve, where the envs report the torso x, ``fig8_groups.png`` and
-      ``numbers["x_split"]``: the target's shared-embedding points in ``x_groups``
-      k-means groups, counted before and after the x where the Curve's slope stops rising
-      (``CURVE_RAMP_LENGTH``, 12 m). Other tasks have no such landmark and skip it.
-    """
-    from pved.analysis.tsne import (
-        DEFAULT_LATER_FRAME_STRIDE,
-        default_later_frames,
-        embed_rollouts,
-        mark_positions,
-        plot_tsne,
-        subspace_embeddings,
-        subspace_numbers,
-        write_x_split,
-    )
-    from pved.envs.terrain import CURVE_RAMP_LENGTH
-
-    torch.set_num_threads(1)
-    # checked before the rollouts, which take the time, and so is where the figures go
-    check_int("--episodes", episodes, low=1)
-    check_int("--marks", marks, low=0)
-    check_seed("--seed", seed)
-    check_int("x_groups", x_groups, low=1)
-    if target_later_frames is not None:
-        check_int("--later-frames", target_later_frames, low=0)
-    if later_frame_stride is not None:
-        check_int("--later-frame-stride", later_frame_stride, low=1)
-    check_writable("--out", out)
-    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
-        pair, model_path, target_policy, source_policy
-    )
-    # The default follows the target agent (Ant's movement needs several frames, Fig. 7),
-    # not the pair's name, so any pair with an Ant target gets it.
-    later = (
-        default_later_frames(preset.target_agent)
-        if target_later_frames is None
-        else int(target_later_frames)
-    )
-    stride = DEFAULT_LATER_FRAME_STRIDE if later_frame_stride is None else int(later_frame_stride)
-    data = embed_rollouts(
-        model, src, tgt, src_id, tgt_id, episodes, seed, match_keys=preset.bank_match_keys
-    )
-    out = Path(out)
-    # One embedding for the scatters, the marks and the x split, so the groups' centres
-    # and the marks are positions in the same picture.
-    emb = subspace_embeddings(data, seed)
-    figures = plot_tsne(
-        data,
-        out,
-        marks=marks,
-        seed=seed,
-        embeddings=emb,
-        target_later_frames=later,
-        later_frame_stride=stride,
-    )
-    numbers = subspace_numbers(data, seed=seed)
-    centres = mark_positions(emb["shared"], marks, seed) if marks > 0 else None
-    numbers["marks"] = [] if centres is None else centres.tolist()
-    numbers["mark_frames"] = {"target_later_frames": later, "later_frame_stride": stride}
-    if preset.target_task == "Curve":
-        split = write_x_split(
-            data, emb["shared"], out, CURVE_RAMP_LENGTH, groups=x_groups, seed=seed, marks=centres
-        )
-        if split is not None:
-            numbers["x_split"] = split
-            figures.append(out / "fig8_groups.png")
-    atomic_write_json(out / "numbers.json", numbers)
-    return {"figures": [str(p) for p in figures], "numbers": numbers}
-
-
-def bound(
-    pair: str,
-    model_path: Path | str,
-    target_policy: Path | str,
-    *,
-    source_policy: Path | str | None = None,
-    episodes: int = 10,
-    quantile: float = 0.95,
-    gamma: float = 0.99,
-    seed: int = 0,
-) -> dict[str, Any]:
-    """``pved bound``: Theorem 1 and Corollary 1 (paper III.E) estimated on rollouts of the
-    source and the transferred target, beside the measured gaps."""
-    from pved.analysis.bound import theorem1_bound
-
-    torch.set_num_threads(1)
-    check_int("--episodes", episodes, low=1)
-    check_number("--quantile", quantile, low=0.0, high=1.0)
-    check_number("--gamma", gamma, low=0.0, high=1.0)
-    check_seed("--seed", seed)
-    preset, model, src, tgt, src_id, tgt_id = _analysis_inputs(
-        pair, model_path, target_policy, source_policy
-    )
-    result = theorem1_bound(
-        model,
-        src,
-        tgt,
-        src_id,
-        tgt_id,
-        episodes,
-        seed,
-        quantile=quantile,
-        gamma=gamma,
-        match_keys=preset.bank_match_keys,
-        time_scale=bank_time_scale(preset.pairing.align, env_dt(src_id), env_dt(tgt_id)),
-    )
-    return {"summary": result.summary(), **result.as_dict()}

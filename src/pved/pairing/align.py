@@ -6,14 +6,15 @@
   Ant 0.05 s): the step of each agent at the same moment of the episode.
 - ``dtw``: dynamic time warping of the two episodes' embeddings in a learned shared
   space, as Gupta et al. (2017) align their agents; :func:`dtw_indices` aligns one pair
-  given the embeddings, and ``pved.experiments.stages.collect_pairs`` runs the rounds
+  given the embeddings, and :func:`pved.pairing.rounds.dtw_rounds` runs the rounds
   (subsample → train → embed → warp → retrain).
 - ``phase``: by gait phase, for walkers whose strides take different times: each pair of
   the time alignment (``time`` where both control periods are known, else
   ``subsample``) keeps its target step and takes, among the source steps near its time
   partner, the one whose gait phase is nearest (:func:`phase_indices`). A gait's phase
   is read off each agent's first principal component of its standardised robot state
-  (:func:`gait_phase`); the stage fits the components on all episodes.
+  (:func:`gait_phase`); :func:`pved.pairing.rounds.phase_alignment` fits the components
+  on all episodes.
 """
 
 from __future__ import annotations

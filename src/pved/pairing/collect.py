@@ -211,8 +211,8 @@ def collect_pairs(
     """Collect ``episodes`` paired episodes and align them by time alone
     (:func:`pved.pairing.align.align`) into a :class:`PairedDataset`.
 
-    Alignments that need a learned model (DTW on shared means) start from this one; the
-    stage ``pved.experiments.stages.collect_pairs`` runs them.
+    Alignments fitted to the episodes (DTW on shared means, gait phase) start from this
+    one (``rounds.py``); the stage ``pved.experiments.stages.collect_pairs`` runs them.
     """
     pairs = collect_episode_pairs(
         source_env,

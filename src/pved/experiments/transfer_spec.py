@@ -1,0 +1,181 @@
+"""A transfer run resolved from its arguments before anything runs (``pved transfer``).
+
+:func:`transfer_spec` says where the run lives, the config its hash is taken of (with
+Eq. 10's entries, :func:`eq10_config`) and what it trains on, reading the model and
+bank only to hash them; the transfer stage (:func:`pved.experiments.stages.transfer`)
+runs it, and a protocol or an exported batch plans its jobs by it without running.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from pved.checks import check_int, given, named_options
+from pved.config import get_preset
+from pved.env_ids import env_id
+from pved.errors import PvedError
+from pved.experiments.inputs import DEFAULT_RUNS, default_model_path
+from pved.rl.ppo import PPOConfig
+from pved.runs import file_digest, run_file, run_path
+from pved.transfer.methods import get_method
+from pved.transfer.shaping import check_shaping_action, check_shaping_form
+
+
+@dataclasses.dataclass(frozen=True)
+class TransferSpec:
+    """A transfer run resolved from its arguments before anything runs: where it lives,
+    the config its hash is taken of, and what it trains on.
+
+    Attributes:
+        config: the resolved config (``config.json``; its hash decides whether a run
+            directory holds this run).
+        run_dir: ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``.
+        env_id: the target agent's target-task env.
+        ppo: PPO's config (seed, steps and curve interval applied).
+        eval_episodes, final_episodes: episodes per curve point and of the final evaluation.
+        train_env_kwargs: env options of the training env (the oracle's full reward).
+        shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
+        beta: the shaping weight (Eq. 10).
+    """
+
+    config: dict[str, Any]
+    run_dir: Path
+    env_id: str
+    ppo: PPOConfig
+    eval_episodes: int
+    final_episodes: int
+    train_env_kwargs: dict[str, Any]
+    shaping_inputs: tuple[Path, Path] | None
+    beta: float
+    shaping_start: int
+    shaping_form: str
+    shaping_action: str
+
+
+def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
+    """The entries of a shaped transfer run's config that say how Eq. 10 is computed
+    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
+    target action encoded, and the term scaled by the shaped return's std but never
+    clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
+    hashes differ, and a protocol does not take them (``Job.required_config``)."""
+    return {
+        "bank_time": get_preset(pair).pairing.align,
+        "shaping_action": shaping_action,
+        "reward_scaling": "term-scaled-unclipped",
+    }
+
+
+def transfer_spec(
+    pair: str,
+    method: str = "pved",
+    *,
+    seed: int = 20000,
+    model_path: Path | str | None = None,
+    bank_path: Path | str | None = None,
+    steps: int | None = None,
+    beta: float | None = None,
+    eval_every: int | None = None,
+    eval_episodes: int | None = None,
+    final_eval_episodes: int | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+    run_name: str | None = None,
+    shaping_start: int = 0,
+    shaping_form: str | None = None,
+    shaping_action: str = "mean",
+) -> TransferSpec:
+    """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
+    Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
+    recipe = get_method(method)  # an unknown method name fails here, before any file check
+    shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
+    check_shaping_form(shaping_form)
+    check_shaping_action(shaping_action)
+    check_int("--shaping-start", shaping_start, low=0)
+    preset = get_preset(pair)
+    # Every option lands in the transfer and PPO configs, which check their fields (a
+    # negative or NaN beta, a negative count of final episodes): refused here, before a
+    # file is read or a directory made, not after the training.
+    with named_options(
+        beta="--beta",
+        eval_every="--eval-every",
+        eval_episodes="--eval-episodes",
+        final_eval_episodes="--final-eval-episodes",
+        seed="--seed",
+        total_steps="--steps",
+    ):
+        tcfg = dataclasses.replace(
+            preset.transfer,
+            **given(
+                beta=beta,
+                eval_every=eval_every,
+                eval_episodes=eval_episodes,
+                final_eval_episodes=final_eval_episodes,
+            ),
+        )
+        # the learning curve's evaluation interval: the preset's unless given
+        ppo = dataclasses.replace(
+            tcfg.ppo,
+            seed=seed,
+            eval_every=tcfg.eval_every,
+            **given(total_steps=steps),
+        )
+    beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
+    name = env_id(preset.target_agent, preset.target_task)
+    config: dict[str, Any] = {
+        "stage": "transfer",
+        "pair": pair,
+        "method": method,
+        "env_id": name,
+        "ppo": ppo,
+        "eval_episodes": eval_episodes,
+        "final_eval_episodes": final_episodes,
+    }
+    shaping_inputs: tuple[Path, Path] | None = None
+    train_env_kwargs: dict[str, Any] = {}
+    if recipe.train_reward == "full":
+        train_env_kwargs = {"reward": "full"}
+        config["train_reward"] = "full"
+    if recipe.model is not None:
+        m_path = (
+            run_file(model_path, "model.pt", "model")
+            if model_path
+            else default_model_path(pair, recipe.model, runs_root)
+        )
+        b_path = (
+            run_file(bank_path, "bank.npz", "source bank")
+            if bank_path
+            else (
+                run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
+                / "bank.npz"
+            )
+        )
+        for what, p in (("model", m_path), ("source bank", b_path)):
+            if not p.exists():
+                raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
+        shaping_inputs = (m_path, b_path)
+        config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
+        config.update(eq10_config(pair, shaping_action))
+        # both only when set, so the runs made before they existed keep their config hashes
+        if shaping_start:
+            config["shaping_start"] = shaping_start
+        if shaping_form != "eq10":
+            config["shaping_form"] = shaping_form
+    if shaping_start and shaping_inputs is None:
+        raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
+    if shaping_form != "eq10" and shaping_inputs is None:
+        raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
+    return TransferSpec(
+        config=config,
+        run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
+        env_id=name,
+        ppo=ppo,
+        eval_episodes=eval_episodes,
+        final_episodes=final_episodes,
+        train_env_kwargs=train_env_kwargs,
+        shaping_inputs=shaping_inputs,
+        beta=beta,
+        shaping_start=shaping_start,
+        shaping_form=shaping_form,
+        shaping_action=shaping_action,
+    )
