@@ -21,6 +21,7 @@ from pved.errors import OptionError, PvedError
 from pved.pairing.collect import Episode, rollout_first_episodes
 from pved.pairing.minari_io import (
     RecordedData,
+    check_new_dataset_id,
     check_recorded_for,
     export_episodes,
     open_recorded,
@@ -85,6 +86,7 @@ def export_source_dataset(
         )
     check_int("--episodes", episodes, low=1)
     check_seed("--seed", seed)
+    check_new_dataset_id(dataset_id)
     keys = preset.bank_match_keys if task == preset.target_task else preset.shared_task_keys
     name = env_id(preset.source_agent, task)
     path = Path(
@@ -94,9 +96,7 @@ def export_source_dataset(
     )
     # the batch the consuming stage rolls out in: the policy's float32 forward pass rounds
     # by batch size (BLAS blocking, ~1e-7), and only the same batch repeats it bit for bit
-    copies = (
-        min(EVAL_NUM_ENVS, episodes) if task == preset.target_task else preset.pairing.num_envs
-    )
+    copies = min(EVAL_NUM_ENVS, episodes) if task == preset.target_task else preset.pairing.num_envs
     env = make_batched(name, copies)
     policy = load_policy_file(path, env=env, env_name=name)
     eps: list[Episode] = []

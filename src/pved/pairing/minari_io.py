@@ -226,6 +226,22 @@ def read_recorded_episodes(
     return episodes
 
 
+def check_new_dataset_id(dataset_id: str) -> tuple[str | None, Path]:
+    """(namespace, folder) of a dataset about to be written as ``dataset_id``; a
+    malformed id or one already taken raises :class:`PvedError` in one line."""
+    _minari()
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    try:
+        namespace = parse_dataset_id(dataset_id)[0]
+    except ValueError as exc:
+        raise PvedError(str(exc).splitlines()[0]) from None
+    final = datasets_root() / dataset_id
+    if final.exists():
+        raise PvedError(f"Minari dataset {dataset_id} already exists at {final}")
+    return namespace, final
+
+
 def export_episodes(
     dataset_id: str,
     episodes: list[Episode],
@@ -247,17 +263,10 @@ def export_episodes(
     """
     minari = _minari()
     from minari.data_collector import EpisodeBuffer
-    from minari.dataset.minari_dataset import parse_dataset_id
     from minari.dataset.minari_storage import MinariStorage
     from minari.namespace import NAMESPACE_METADATA_FILENAME, create_namespace
 
-    try:
-        namespace = parse_dataset_id(dataset_id)[0]
-    except ValueError as exc:
-        raise PvedError(str(exc).splitlines()[0]) from None
-    final = datasets_root() / dataset_id
-    if final.exists():
-        raise PvedError(f"Minari dataset {dataset_id} already exists at {final}")
+    namespace, final = check_new_dataset_id(dataset_id)
     if not episodes:
         raise PvedError("no episodes to export")
     missing = [k for k in task_keys if k not in episodes[0].reset_info]
