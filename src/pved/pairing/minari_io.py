@@ -6,7 +6,7 @@ reset to each episode's task parameters. This module reads such a dataset into p
 :class:`~pved.pairing.collect.Episode` and writes pved's own rollouts as one, so a user
 can check the route on data they made.
 
-How Minari's fields map (docs/decisions/policy-and-data-sources.md):
+How Minari's fields map (docs/decisions/sources.md):
 
 - ``observations`` (T+1, obs_dim): the first T are the states the T ``actions`` were taken
   in (``Episode.obs``); the last is the one the last action led to (``final_obs``).

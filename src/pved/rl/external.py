@@ -4,7 +4,7 @@
 Stable-Baselines3 ``.zip`` (``model.save``), the latter with SB3's own loader behind an
 adapter that has pved's :class:`~pved.rl.policy.Actor` interface. SB3 is an optional
 extra (``pip install pved[sb3]``) imported only when such a file is given, so
-``import pved`` never needs it. docs/decisions/policy-and-data-sources.md says how SB3's
+``import pved`` never needs it. docs/decisions/sources.md says how SB3's
 policies map onto pved's.
 
 An SB3 file is a zip holding a ``data`` JSON entry and a ``policy.pth``; loading it
