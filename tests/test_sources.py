@@ -21,7 +21,7 @@ from pved.envs import make_batched
 from pved.envs.registry import make
 from pved.errors import PvedError
 from pved.experiments.sources import export_source_dataset
-from pved.experiments.stages import build_bank, collect_pairs
+from pved.experiments.stages import build_bank, collect_pairs, evaluate
 from pved.pairing.dataset import load_dataset
 from pved.pairing.minari_io import open_recorded, read_recorded_episodes
 from pved.rl.external import SB3Policy, load_policy_file
@@ -112,6 +112,8 @@ def test_sb3_policy_is_the_source_of_build_bank_and_collect_pairs(
         )
     )
     assert pairs.header["source_policy"] == str(sb3_zips["reach"])
+    # and evaluated as any policy is
+    assert evaluate(sb3_zips["push"], PUSH, episodes=2)["episodes"] == 2
     first = pairs.t_source == 0
     obs, _ = make_batched(REACH, 16).reset(seed=0)
     want, _ = sb3.PPO.load(sb3_zips["reach"], device="cpu").predict(obs[:4], deterministic=True)
@@ -265,6 +267,14 @@ def test_datasets_for_another_agent_are_refused_before_any_work(
                    "--source-policy")  # fmt: skip
     one_line_error(capsys, "export-minari", "reach-v0", "--task", "Reach",
                    match="Minari dataset reach-v0 already exists")  # fmt: skip
+    one_line_error(capsys, "export-minari", "new-v0", "--episodes", "0",
+                   match="--episodes must be an integer >= 1")  # fmt: skip
+    one_line_error(capsys, "export-minari", "new id", match="Malformed dataset ID")  # fmt: skip
+    assert sorted(p.name for p in datasets_root.iterdir()) == [
+        "reach-v0",
+        "small-v0",
+        "taskless-v0",
+    ]
     assert not list(runs.rglob("result.json")) and not list(runs.rglob("*.npz"))
 
 
