@@ -91,6 +91,24 @@ def test_sb3_policy_acts_as_sb3_predicts(sb3_zips: dict[str, Path]) -> None:
     assert not np.allclose(a, want) and np.all(np.abs(a) <= 1.0)
 
 
+@pytest.mark.parametrize("algorithm", ["A2C", "SAC", "TD3", "DDPG"])
+def test_other_sb3_algorithms_load_as_their_own(algorithm: str, tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    kwargs = {"policy_kwargs": {"net_arch": [8]}, "seed": 0, "device": "cpu"}
+    if algorithm != "A2C":
+        kwargs["buffer_size"] = 100
+    getattr(sb3, algorithm)("MlpPolicy", make(PUSH), **kwargs).save(tmp_path / "m.zip")
+    policy = load_policy_file(tmp_path / "m.zip", env=make_batched(PUSH, 3), env_name=PUSH)
+    assert isinstance(policy, SB3Policy)
+    assert policy.metadata["algorithm"] == {"A2C": "PPO", "DDPG": "TD3"}.get(algorithm, algorithm)
+    obs, _ = make_batched(PUSH, 3).reset(seed=2)
+    want, _ = policy.model.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(policy.act(obs, deterministic=True), want)
+    sampled = policy.act(obs, rng=np.random.default_rng(0))
+    np.testing.assert_array_equal(sampled, policy.act(obs, rng=np.random.default_rng(0)))
+    assert sampled.shape == (3, 3) and np.all(np.abs(sampled) <= 1.0)
+
+
 def test_sb3_policy_is_the_source_of_build_bank_and_collect_pairs(
     sb3_zips: dict[str, Path], tmp_path: Path
 ) -> None:

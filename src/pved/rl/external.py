@@ -93,6 +93,8 @@ class SB3Policy:
             "training_steps": int(getattr(model, "num_timesteps", 0)),
             "seed": getattr(model, "seed", None),
         }
+        # the noise of sampled actions when the caller gives no rng, as Policy's own
+        self._rng = np.random.default_rng(int(self.metadata["seed"] or 0))
 
     @property
     def obs_dim(self) -> int:
@@ -116,7 +118,7 @@ class SB3Policy:
                 f"got {obs.shape}"
             )
         policy = self.model.policy
-        gen = np.random.default_rng(0) if rng is None else rng
+        gen = self._rng if rng is None else rng
         if deterministic:
             action, _ = policy.predict(obs, deterministic=True)
             return np.asarray(action, dtype=np.float64).reshape(len(obs), self.act_dim)
