@@ -49,6 +49,8 @@ def recorded_episodes(
     """The first ``episodes`` (default all) of ``data`` after checking it was recorded
     for ``env``'s agent; asking for more than it holds is refused in one line."""
     check_recorded_for(data, env_name, env)
+    if data.episodes == 0:
+        raise PvedError(f"Minari dataset {data.ref} holds no episodes")
     if episodes is not None and episodes > data.episodes:
         raise PvedError(
             f"Minari dataset {data.ref} holds {data.episodes} episodes, {episodes} were asked for"
