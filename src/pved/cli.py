@@ -76,6 +76,7 @@ def _cmd_collect_pairs(args: argparse.Namespace) -> None:
             align=args.align,
             task=args.task,
             runs_root=args.runs,
+            source_dataset=args.source_dataset,
         )
     )
 
@@ -105,6 +106,22 @@ def _cmd_build_bank(args: argparse.Namespace) -> None:
             episodes=args.episodes,
             seed=args.seed,
             runs_root=args.runs,
+            source_dataset=args.source_dataset,
+        )
+    )
+
+
+def _cmd_export_minari(args: argparse.Namespace) -> None:
+    from pved.experiments.sources import export_source_dataset
+
+    print(
+        export_source_dataset(
+            args.pair,
+            args.dataset_id,
+            task=args.task,
+            source_policy=args.source_policy,
+            episodes=args.episodes,
+            seed=args.seed,
         )
     )
 
@@ -522,7 +539,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--source-policy",
         type=Path,
-        help="policy.pt or its run directory (default: the shipped pretrained one)",
+        help="policy.pt, an SB3 .zip, or a run directory (default: the shipped pretrained one)",
+    )
+    p.add_argument(
+        "--source-dataset",
+        help="instead of a source policy: a Minari dataset id or folder of the source's "
+        "recorded episodes; the target is reset to each one's task (docs/sources.md)",
     )
     p.add_argument(
         "--target-policy",
@@ -561,11 +583,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--source-policy",
         type=Path,
-        help="policy.pt or its run directory (default: the shipped pretrained one)",
+        help="policy.pt, an SB3 .zip, or a run directory (default: the shipped pretrained one)",
+    )
+    p.add_argument(
+        "--source-dataset",
+        help="instead of a source policy: a Minari dataset id or folder of the source's "
+        "recorded target-task episodes (docs/sources.md)",
     )
     p.add_argument("--episodes", type=int)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_build_bank)
+
+    text = "write the source's rollouts as a Minari dataset (under MINARI_DATASETS_PATH)"
+    p = sub.add_parser("export-minari", help=text, description=text)
+    p.add_argument("dataset_id", help="the new dataset's id, e.g. reacher3-push-v0")
+    p.add_argument("--pair", default="reacher", help=pair_help)
+    p.add_argument(
+        "--task", help="the source's task (default: the pair's target task, a bank's source)"
+    )
+    p.add_argument(
+        "--source-policy",
+        type=Path,
+        help="policy.pt or an SB3 .zip (default: the shipped pretrained one)",
+    )
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_export_minari)
 
     p = add("transfer", "PPO of the target agent with the Eq. 10 shaping (or --model ppo)")
     p.add_argument("--pair", default="reacher", help=pair_help)

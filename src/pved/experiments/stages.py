@@ -35,13 +35,19 @@ from pved.experiments.inputs import (
     check_model_for,
     default_dataset_path,
 )
+from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
 from pved.experiments.transfer_spec import transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
 from pved.pairing.align import align as align_steps
-from pved.pairing.collect import collect_episode_pairs, env_header, pairs_to_dataset
+from pved.pairing.collect import (
+    collect_episode_pairs,
+    env_header,
+    pair_recorded_episodes,
+    pairs_to_dataset,
+)
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pairing.rounds import (
     Embedder,
@@ -52,13 +58,15 @@ from pved.pairing.rounds import (
 )
 from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
-from pved.rl.policy import Policy, load_policy
+from pved.rl.external import load_policy_file
+from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
     bank_dt,
+    bank_from_episodes,
     bank_time_scale,
     build_source_bank,
     load_bank,
@@ -76,17 +84,6 @@ def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Pat
     if path is None:
         return pretrained_policy_path(agent, task)
     return run_file(path, "policy.pt", f"{agent}'s policy")
-
-
-def _check_policy(policy: Policy, env_name: str, env: BatchedEnv) -> None:
-    """A policy made for another agent (its dims) is refused before it is rolled out."""
-    obs_dim = env.single_observation_space.shape[0]
-    act_dim = env.single_action_space.shape[0]
-    if policy.obs_dim != obs_dim or policy.act_dim != act_dim:
-        raise PvedError(
-            f"policy dims (obs {policy.obs_dim}, act {policy.act_dim}) do not match {env_name} "
-            f"(obs {obs_dim}, act {act_dim})"
-        )
 
 
 def _eval_fn(
@@ -226,8 +223,13 @@ def collect_pairs(
     task: str | None = None,
     runs_root: Path = DEFAULT_RUNS,
     progress: bool = True,
+    source_dataset: Path | str | None = None,
 ) -> Path:
     """Paired rollouts of both agents' policies on ``task`` (``pved collect-pairs``).
+
+    With ``source_dataset`` (a Minari dataset id or folder, ``pved.pairing.minari_io``) the
+    source's side is its recorded episodes (default all; ``episodes`` the first ones) and
+    the target is reset to each one's task parameters (``experiments.sources``).
 
     ``task`` is the pair's training task (default; paper IV.A) or its target task. The
     latter is not the paper's setting (the target agent has no policy for its target
@@ -242,6 +244,10 @@ def collect_pairs(
     # keeps the preset's pairing config (its hash is that of the runs made before)
     with named_options(episodes="--episodes", align="--align", seed="--seed"):
         dataclasses.replace(cfg, **given(episodes=episodes, align=align, seed=seed))
+    check_one_source(source_policy, source_dataset)
+    recorded = None if source_dataset is None else open_recorded(source_dataset)
+    if recorded is not None and episodes is None:
+        episodes = recorded.episodes
     episodes = cfg.episodes if episodes is None else episodes
     align = cfg.align if align is None else align
     task = preset.training_task if task is None else task
@@ -252,7 +258,7 @@ def collect_pairs(
         )
     on_training_task = task == preset.training_task
     shared_task_keys = preset.shared_task_keys if on_training_task else preset.bank_match_keys
-    src_path = _policy_or_pretrained(source_policy, preset.source_agent, task)
+    src_path = None if recorded else _policy_or_pretrained(source_policy, preset.source_agent, task)
     tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, task)
     src_id = env_id(preset.source_agent, task)
     tgt_id = env_id(preset.target_agent, task)
@@ -263,9 +269,13 @@ def collect_pairs(
         "seed": seed,
         "align": align,
         "pairing": cfg,
-        "source_policy": file_digest(src_path),
         "target_policy": file_digest(tgt_path),
     }
+    if recorded is None:
+        assert src_path is not None
+        config["source_policy"] = file_digest(src_path)
+    else:
+        config["source_dataset"] = recorded.provenance["digest"]
     run_name = align
     if not on_training_task:
         # only then, so the datasets made before the option keep their hashes and places
@@ -278,28 +288,45 @@ def collect_pairs(
     check_writable("--runs", run.path)
     src_env = make_batched(src_id, cfg.num_envs)
     tgt_env = make_batched(tgt_id, cfg.num_envs)
-    src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
-    _check_policy(src_pol, src_id, src_env)
-    _check_policy(tgt_pol, tgt_id, tgt_env)
-    run.start()
-    pairs = collect_episode_pairs(
-        src_env,
-        tgt_env,
-        src_pol,
-        tgt_pol,
-        episodes,
-        shared_task_keys=shared_task_keys,
-        deterministic=cfg.deterministic,
-        seed=seed,
-        progress=progress,
-    )
+    tgt_pol = load_policy_file(tgt_path, env=tgt_env, env_name=tgt_id)
+    if recorded is None:
+        assert src_path is not None
+        src_pol = load_policy_file(src_path, env=src_env, env_name=src_id)
+        run.start()
+        pairs = collect_episode_pairs(
+            src_env,
+            tgt_env,
+            src_pol,
+            tgt_pol,
+            episodes,
+            shared_task_keys=shared_task_keys,
+            deterministic=cfg.deterministic,
+            seed=seed,
+            progress=progress,
+        )
+    else:
+        src_eps = recorded_episodes(recorded, src_id, src_env, shared_task_keys, episodes)
+        run.start()
+        pairs = pair_recorded_episodes(
+            src_eps,
+            tgt_env,
+            tgt_pol,
+            shared_task_keys=shared_task_keys,
+            deterministic=cfg.deterministic,
+            seed=seed,
+            progress=progress,
+        )
     header = {
         "pair": pair,
         "source_agent": preset.source_agent,
         "target_agent": preset.target_agent,
         "source_env_id": src_id,
         "target_env_id": tgt_id,
-        "source_policy": str(src_path),
+        **(
+            {"source_policy": str(src_path)}
+            if recorded is None
+            else {"source_dataset": recorded.provenance}
+        ),
         "target_policy": str(tgt_path),
         **env_header(src_env, tgt_env),
         "alignment": align,
@@ -456,24 +483,34 @@ def build_bank(
     episodes: int | None = None,
     seed: int = 0,
     runs_root: Path = DEFAULT_RUNS,
+    source_dataset: Path | str | None = None,
 ) -> Path:
-    """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer."""
+    """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer; with
+    ``source_dataset`` (a Minari dataset id or folder) its recorded episodes instead
+    (default all; ``episodes`` the first ones)."""
     preset = get_preset(pair)
     if episodes is not None:
         with named_options(bank_episodes="--episodes"):
             dataclasses.replace(preset.transfer, bank_episodes=episodes)
     check_seed("--seed", seed)
+    check_one_source(source_policy, source_dataset)
+    recorded = None if source_dataset is None else open_recorded(source_dataset)
+    if recorded is not None and episodes is None:
+        episodes = recorded.episodes
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
-    path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
     name = env_id(preset.source_agent, preset.target_task)
-    config = {
+    config: dict[str, Any] = {
         "stage": "bank",
         "env_id": name,
         "episodes": episodes,
         "seed": seed,
         "match_keys": preset.bank_match_keys,
-        "source_policy": file_digest(path),
     }
+    if recorded is None:
+        path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
+        config["source_policy"] = file_digest(path)
+    else:
+        config["source_dataset"] = recorded.provenance["digest"]
     run = Run(
         run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
         config,
@@ -484,17 +521,27 @@ def build_bank(
         return out
     check_writable("--runs", run.path)
     env = _eval_env(name, episodes)
-    policy = load_policy(path)
-    _check_policy(policy, name, env)
-    run.start()
-    bank = build_source_bank(
-        env,
-        policy,
-        episodes,
-        preset.bank_match_keys,
-        seed=seed,
-        header={"env_id": name, "source_policy": str(path)},
-    )
+    if recorded is None:
+        policy = load_policy_file(path, env=env, env_name=name)
+        run.start()
+        bank = build_source_bank(
+            env,
+            policy,
+            episodes,
+            preset.bank_match_keys,
+            seed=seed,
+            header={"env_id": name, "source_policy": str(path)},
+        )
+    else:
+        eps = recorded_episodes(recorded, name, env, preset.bank_match_keys, episodes)
+        run.start()
+        bank = bank_from_episodes(
+            eps,
+            preset.bank_match_keys,
+            env.robot_state_indices,
+            header={"env_id": name, "source_dataset": recorded.provenance},
+            dt=getattr(env, "dt", None),
+        )
     save_bank(out, bank)
     run.finish(
         {"bank": str(out), "episodes": episodes, "success_rate": bank.header["success_rate"]}
@@ -639,9 +686,10 @@ def evaluate(
     pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
     check_int("--episodes", episodes, low=1)
     check_seed("--seed", seed)
-    policy = load_policy(run_file(policy_path, "policy.pt", "policy"))
     env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
-    _check_policy(policy, env_name, env)
+    policy = load_policy_file(
+        run_file(policy_path, "policy.pt", "policy"), env=env, env_name=env_name
+    )
     info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
     return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
 

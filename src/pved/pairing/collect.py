@@ -19,7 +19,7 @@ from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
 from pved.pairing.align import align
 from pved.pairing.dataset import PairedDataset
-from pved.rl.policy import Policy
+from pved.rl.policy import Actor
 
 
 @dataclass
@@ -30,11 +30,17 @@ class Episode:
     act: np.ndarray  # (T, act_dim)
     reset_info: dict[str, Any]  # this copy's reset info (task parameters)
     success: bool
+    # what a recorded-data format (Minari) keeps besides: the rewards (T,), the
+    # observation the last action led to (obs_dim,), and whether the episode
+    # terminated rather than being truncated; None where not recorded
+    reward: np.ndarray | None = None
+    final_obs: np.ndarray | None = None
+    terminated: bool | None = None
 
 
 def rollout_first_episodes(
     env: BatchedEnv,
-    policy: Policy,
+    policy: Actor,
     seed: int,
     options: Mapping[str, Any] | None = None,
     deterministic: bool = True,
@@ -51,25 +57,41 @@ def rollout_first_episodes(
     reset_info = [{k: np.asarray(v[i]) for k, v in info.items()} for i in range(n)]
     obs_log: list[np.ndarray] = []
     act_log: list[np.ndarray] = []
+    rew_log: list[np.ndarray] = []
     length = np.full(n, -1, dtype=np.int64)
     success = np.zeros(n, dtype=bool)
+    ended_by_termination = np.zeros(n, dtype=bool)
+    final_obs = np.zeros_like(obs)
     for t in range(env.max_episode_steps + 1):
         if np.all(length >= 0):
             break
         action = policy.act(obs, deterministic=deterministic, rng=rng)
         obs_log.append(obs.copy())
         act_log.append(np.asarray(action, dtype=np.float64).copy())
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, reward, terminated, truncated, info = env.step(action)
+        rew_log.append(np.asarray(reward, dtype=np.float64).copy())
         done = (terminated | truncated) & (length < 0)
         if "is_success" in info:
             success[done] = np.asarray(info["is_success"], dtype=bool)[done]
+        ended_by_termination[done] = np.asarray(terminated, dtype=bool)[done]
+        # the autoreset put the next episode's first observation in ``obs``
+        final_obs[done] = np.asarray(info.get("final_obs", obs))[done]
         length[done] = t + 1
     if np.any(length < 0):
         raise PvedError(f"episodes did not end within max_episode_steps={env.max_episode_steps}")
     obs_arr = np.stack(obs_log, 1)  # (N, T, obs_dim)
     act_arr = np.stack(act_log, 1)
+    rew_arr = np.stack(rew_log, 1)
     return [
-        Episode(obs_arr[i, : length[i]], act_arr[i, : length[i]], reset_info[i], bool(success[i]))
+        Episode(
+            obs_arr[i, : length[i]],
+            act_arr[i, : length[i]],
+            reset_info[i],
+            bool(success[i]),
+            reward=rew_arr[i, : length[i]],
+            final_obs=final_obs[i].copy(),
+            terminated=bool(ended_by_termination[i]),
+        )
         for i in range(n)
     ]
 
@@ -80,8 +102,8 @@ EpisodePair = tuple[Episode, Episode]
 def collect_episode_pairs(
     source_env: BatchedEnv,
     target_env: BatchedEnv,
-    source_policy: Policy,
-    target_policy: Policy,
+    source_policy: Actor,
+    target_policy: Actor,
     episodes: int,
     *,
     shared_task_keys: tuple[str, ...],
@@ -126,6 +148,46 @@ def collect_episode_pairs(
         # keep exactly ``episodes`` pairs (the last batch may overshoot)
         pairs.extend(list(zip(src, tgt, strict=True))[: episodes - len(pairs)])
         bar.update(min(n, episodes - bar.n))
+    bar.close()
+    return pairs
+
+
+def pair_recorded_episodes(
+    source_episodes: list[Episode],
+    target_env: BatchedEnv,
+    target_policy: Actor,
+    *,
+    shared_task_keys: tuple[str, ...],
+    deterministic: bool = True,
+    seed: int = 0,
+    progress: bool = True,
+) -> list[EpisodePair]:
+    """Pair recorded source episodes (a Minari dataset's) with target rollouts, source first.
+
+    As :func:`collect_episode_pairs`, with the source's side read instead of rolled out:
+    the target env is reset with each recorded episode's task parameters
+    ``shared_task_keys`` and the target's policy run from there. Batch ``b`` of
+    ``target_env.num_envs`` episodes is reset with seed ``seed + b·num_envs``, the seeds
+    :func:`collect_episode_pairs` gives the target for the same episodes, so recorded
+    rollouts of the source pair as its live ones do.
+    """
+    n = target_env.num_envs
+    pairs: list[EpisodePair] = []
+    bar = tqdm(total=len(source_episodes), desc="pair recorded", unit="ep", disable=not progress)
+    for b in range(-(-len(source_episodes) // n)):
+        src = source_episodes[b * n : (b + 1) * n]
+        # a short last batch: the spare copies replay its last episode's task, then are dropped
+        padded = src + [src[-1]] * (n - len(src))
+        shared = {
+            k: np.stack([np.asarray(e.reset_info[k]) for e in padded]) for k in shared_task_keys
+        }
+        tgt = rollout_first_episodes(target_env, target_policy, seed + b * n, shared, deterministic)
+        for e_s, e_t in zip(src, tgt, strict=False):
+            for k in shared_task_keys:
+                if not np.allclose(e_s.reset_info[k], e_t.reset_info[k]):
+                    raise PvedError(f"target env did not accept the shared task parameter {k!r}")
+        pairs.extend(zip(src, tgt[: len(src)], strict=True))
+        bar.update(len(src))
     bar.close()
     return pairs
 
@@ -197,8 +259,8 @@ def env_header(source_env: BatchedEnv, target_env: BatchedEnv) -> dict[str, Any]
 def collect_pairs(
     source_env: BatchedEnv,
     target_env: BatchedEnv,
-    source_policy: Policy,
-    target_policy: Policy,
+    source_policy: Actor,
+    target_policy: Actor,
     episodes: int,
     *,
     shared_task_keys: tuple[str, ...],

@@ -8,11 +8,11 @@ import numpy as np
 
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
-from pved.rl.policy import Policy
+from pved.rl.policy import Actor
 
 
 def evaluate_policy(
-    policy: Policy,
+    policy: Actor,
     env: BatchedEnv,
     episodes: int,
     seed: int,

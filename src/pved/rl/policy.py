@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -27,6 +27,24 @@ from pved.runs import atomic_torch_save, safe_torch_load, to_jsonable
 
 POLICY_FORMAT = "pved-policy"
 POLICY_FORMAT_VERSION = 1
+
+
+class Actor(Protocol):
+    """What rolling a policy out needs (pairing, source banks, evaluation): pved's
+    :class:`Policy`, or an adapter over another library's (``pved.rl.external``)."""
+
+    @property
+    def obs_dim(self) -> int: ...
+
+    @property
+    def act_dim(self) -> int: ...
+
+    def act(
+        self,
+        obs: np.ndarray,
+        deterministic: bool = False,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray: ...
 
 
 class Policy:

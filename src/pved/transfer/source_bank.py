@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import json
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,8 @@ from pved import __version__
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
-from pved.pairing.collect import rollout_first_episodes
-from pved.rl.policy import Policy
+from pved.pairing.collect import Episode, rollout_first_episodes
+from pved.rl.policy import Actor
 from pved.runs import atomic_write_bytes
 
 FORMAT = "pved-source-bank/1"
@@ -137,7 +138,7 @@ def bank_dt(bank: SourceBank) -> float | None:
 
 def build_source_bank(
     env: BatchedEnv,
-    policy: Policy,
+    policy: Actor,
     episodes: int,
     match_keys: tuple[str, ...],
     *,
@@ -146,13 +147,37 @@ def build_source_bank(
     header: dict[str, Any] | None = None,
 ) -> SourceBank:
     """Roll out ``policy`` for ``episodes`` episodes and keep robot state + action."""
-    idx = np.asarray(env.robot_state_indices)
     eps = []
     for b in range(-(-episodes // env.num_envs)):
         eps.extend(
             rollout_first_episodes(env, policy, seed + b * env.num_envs, None, deterministic)
         )
-    eps = eps[:episodes]
+    return bank_from_episodes(
+        eps[:episodes],
+        match_keys,
+        env.robot_state_indices,
+        header=header,
+        seed=seed,
+        dt=getattr(env, "dt", None),
+    )
+
+
+def bank_from_episodes(
+    eps: Sequence[Episode],
+    match_keys: tuple[str, ...],
+    robot_state_indices: Sequence[int] | np.ndarray,
+    *,
+    header: dict[str, Any] | None = None,
+    seed: int | None = None,
+    dt: float | None = None,
+) -> SourceBank:
+    """The bank of episodes already rolled out or recorded (a Minari dataset's): each
+    one's robot state (``robot_state_indices`` of its observations) and actions, matched on
+    its reset info's ``match_keys``; ``seed`` is the rollouts' (None for recorded data) and
+    ``dt`` the source's control period."""
+    if not eps:
+        raise PvedError("a source bank needs at least one episode")
+    idx = np.asarray(robot_state_indices, dtype=np.int64)
     t_max = max(len(e.obs) for e in eps)
     dim = len(idx) + eps[0].act.shape[1]
     x = np.zeros((len(eps), t_max, dim), dtype=np.float32)
@@ -172,7 +197,7 @@ def build_source_bank(
         "success_rate": float(np.mean([e.success for e in eps])),
         "robot_state_indices": [int(i) for i in idx],
         # the source's control period, which the lookup's time base needs
-        "dt": getattr(env, "dt", None),
+        "dt": dt,
     }
     return SourceBank(x, np.array([len(e.obs) for e in eps], dtype=np.int64), keys, full_header)
 
