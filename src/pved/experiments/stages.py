@@ -33,9 +33,16 @@ from pved.checks import (
     given,
     named_options,
 )
-from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
+from pved.config import (
+    EVAL_NUM_ENVS,
+    PRETRAINED,
+    TRAINED,
+    PairPreset,
+    get_preset,
+    preset_for_agent,
+)
 from pved.envs import BatchedEnv, make_batched
-from pved.envs.registry import env_id, get_entry
+from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.base import SharedSpaceModel
@@ -63,6 +70,7 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
+from pved.spec import spec_identity
 from pved.transfer.shaping import (
     LatentShaping,
     ShapedBatchedEnv,
@@ -139,10 +147,44 @@ def file_digest(path: Path) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
-    if path is None:
+def env_of(preset: PairPreset, agent: str, task: str) -> tuple[str, dict[str, Any]]:
+    """``agent``'s env on ``task`` in ``preset``: its id, and the arguments
+    :func:`~pved.envs.make_batched` takes for it (the spec's ``kwargs``, and its
+    ``robot_state`` where the spec names one)."""
+    entry = preset.agent_env(agent, task)
+    kwargs: dict[str, Any] = dict(entry.kwargs)
+    state = preset.robot_state_of(agent)
+    if state is not None:
+        kwargs["robot_state"] = state
+    return entry.env_id, kwargs
+
+
+def policy_path(
+    preset: PairPreset,
+    agent: str,
+    task: str,
+    given: Path | str | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+) -> Path:
+    """The policy file ``agent`` acts with on ``task``: ``given`` (a file or its run
+    directory), else what the pair's spec names: the policy shipped with pved, the
+    pair's own ``pved train-policy`` run (seed 0, under ``runs_root``), or a file. Every
+    stage finds its policies here, and loads them with ``pved.rl.policy.load_policy``."""
+    if given is not None:
+        return run_file(given, "policy.pt", f"{agent}'s policy")
+    choice = preset.agent_env(agent, task).policy
+    if choice == PRETRAINED:
         return pretrained_policy_path(agent, task)
-    return run_file(path, "policy.pt", f"{agent}'s policy")
+    if choice == TRAINED:
+        trained = run_path(runs_root, preset.name, "policy", f"{agent}-{task}", 0) / "policy.pt"
+        if not trained.is_file():
+            raise PvedError(
+                f"{agent}'s policy on {task} not found: {trained} (the spec says 'trained': "
+                f"run pved train-policy --pair {preset.name} --agent {agent} --task {task} "
+                "first, or give the policy)"
+            )
+        return trained
+    return run_file(choice, "policy.pt", f"{agent}'s policy on {task} (the spec's)")
 
 
 def _check_policy(policy: Policy, env_name: str, env: BatchedEnv) -> None:
@@ -186,8 +228,12 @@ def train_policy(
     eval_episodes: int | None = None,
     progress: bool = True,
     checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
+    pair: str | None = None,
 ) -> Path:
     """PPO for any agent on any task (``pved train-policy``). Returns the policy file.
+
+    ``pair`` (a name or a spec file) is the pair whose env and PPO config the agent's
+    task takes (default: the first pair the agent is in).
 
     Evaluated every ``eval_every`` steps of the pair's PPO config on ``eval_episodes``
     (default: the preset's ``policy_eval_episodes``). With the preset's
@@ -195,8 +241,13 @@ def train_policy(
     (the end of training included) is the one saved, and ``result.json`` says which step
     it came from; judge it on fresh episodes (``pved evaluate``), not on these.
     ``checkpoint_every_s``: wall-clock seconds between checkpoints (:func:`train_ppo`)."""
-    preset = preset_for_agent(agent)
-    name = env_id(agent, task)
+    preset = preset_for_agent(agent) if pair is None else get_preset(pair)
+    if agent not in (preset.source_agent, preset.target_agent):
+        raise PvedError(
+            f"unknown agent {agent!r} for {preset.name}: its agents are {preset.source_agent} "
+            f"and {preset.target_agent}"
+        )
+    name, spec_kwargs = env_of(preset, agent, task)
     with named_options(seed="--seed", total_steps="--steps"):
         ppo = dataclasses.replace(
             preset.policy_config(agent, task), seed=seed, **given(total_steps=steps)
@@ -209,7 +260,9 @@ def train_policy(
     check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
     if reward is not None and not isinstance(reward, str):
         raise OptionError("--reward", reward, "the name of a reward variant")
-    env_kwargs = {"reward": reward} if reward else {}
+    state = spec_kwargs.pop("robot_state", None)
+    # the spec's env arguments (none for a built-in pair's: their hashes stand)
+    env_kwargs = {**spec_kwargs, **({"reward": reward} if reward else {})}
     config = {"stage": "policy", "env_id": name, "env_kwargs": env_kwargs, "ppo": ppo}
     run = Run(run_path(runs_root, preset.name, "policy", f"{agent}-{task}", seed), config)
     policy_file = run.path / "policy.pt"
@@ -217,7 +270,7 @@ def train_policy(
         return policy_file
     check_writable("--runs", run.path)
     # the envs check the reward variant: made before the run directory is
-    env = make_batched(name, ppo.num_envs, **env_kwargs)
+    env = make_batched(name, ppo.num_envs, robot_state=state, **env_kwargs)
     eval_fn = _eval_fn(name, episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
     run.start()
     metadata = {
@@ -302,8 +355,13 @@ def collect_pairs(
     seen the target task's states, so transfer with it says what the training task's
     coverage costs. Both agents of a target-task pair share the parameters a bank is
     matched on (``bank_match_keys``: the hole, the button), as the training task's share
-    ``shared_task_keys``."""
+    ``shared_task_keys``. A pair whose envs report no shared parameter (``[tasks]
+    shared = []``, e.g. two stock Gymnasium envs) pairs the episodes by seed alone:
+    the k-th episodes of both agents start from resets with the same seed.
+
+    ``pair`` is a pair's name or a spec file (:func:`pved.spec.load_pair`)."""
     preset = get_preset(pair)
+    pair = preset.name
     cfg = preset.pairing
     # the options checked as the pairing config checks its own fields; the run's config
     # keeps the preset's pairing config (its hash is that of the runs made before)
@@ -319,10 +377,10 @@ def collect_pairs(
         )
     on_training_task = task == preset.training_task
     shared_task_keys = preset.shared_task_keys if on_training_task else preset.bank_match_keys
-    src_path = _policy_or_pretrained(source_policy, preset.source_agent, task)
-    tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, task)
-    src_id = env_id(preset.source_agent, task)
-    tgt_id = env_id(preset.target_agent, task)
+    src_path = policy_path(preset, preset.source_agent, task, source_policy, runs_root)
+    tgt_path = policy_path(preset, preset.target_agent, task, target_policy, runs_root)
+    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
+    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
     config = {
         "stage": "pairs",
         "pair": pair,
@@ -332,6 +390,7 @@ def collect_pairs(
         "pairing": cfg,
         "source_policy": file_digest(src_path),
         "target_policy": file_digest(tgt_path),
+        **spec_identity(preset),
     }
     run_name = align
     if not on_training_task:
@@ -343,8 +402,8 @@ def collect_pairs(
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
-    src_env = make_batched(src_id, cfg.num_envs)
-    tgt_env = make_batched(tgt_id, cfg.num_envs)
+    src_env = make_batched(src_id, cfg.num_envs, **src_kwargs)
+    tgt_env = make_batched(tgt_id, cfg.num_envs, **tgt_kwargs)
     src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
     _check_policy(src_pol, src_id, src_env)
     _check_policy(tgt_pol, tgt_id, tgt_env)
@@ -366,6 +425,7 @@ def collect_pairs(
         "target_agent": preset.target_agent,
         "source_env_id": src_id,
         "target_env_id": tgt_id,
+        **spec_identity(preset),
         "source_policy": str(src_path),
         "target_policy": str(tgt_path),
         **env_header(src_env, tgt_env),
@@ -505,13 +565,14 @@ def _partner(alignment: tuple[np.ndarray, np.ndarray], length_source: int) -> np
 
 
 def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
-    return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
+    preset = get_preset(pair)
+    return run_path(runs_root, preset.name, "pairs", preset.pairing.align, seed) / "pairs.npz"
 
 
 def default_model_path(
     pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0
 ) -> Path:
-    return run_path(runs_root, pair, "model", model, seed) / "model.pt"
+    return run_path(runs_root, get_preset(pair).name, "model", model, seed) / "model.pt"
 
 
 def train_model(
@@ -524,8 +585,10 @@ def train_model(
     runs_root: Path = DEFAULT_RUNS,
     progress: bool = True,
 ) -> Path:
-    """Fit a shared-space model on a paired dataset (``pved train-model``)."""
+    """Fit a shared-space model on a paired dataset (``pved train-model``). A dataset
+    collected for another pair, agents or spec is refused before the fit."""
     preset = get_preset(pair)
+    pair = preset.name
     with named_options(epochs="--epochs", seed="--seed"):
         model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     data_path = (
@@ -535,11 +598,21 @@ def train_model(
     )
     data = load_dataset(data_path)
     data.check_agents(preset.source_agent, preset.target_agent)
+    check_dataset_for(preset, data.header, data_path)
     # the envs the pairs were collected on: the training task's unless `--task` chose another
-    src_id = data.header.get("source_env_id", env_id(preset.source_agent, preset.training_task))
-    tgt_id = data.header.get("target_env_id", env_id(preset.target_agent, preset.training_task))
-    src_env = make_batched(src_id, 1)
-    tgt_env = make_batched(tgt_id, 1)
+    task = preset.training_task
+    for env_task in (preset.training_task, preset.target_task):
+        if (
+            data.header.get("target_env_id")
+            == preset.agent_env(preset.target_agent, env_task).env_id
+        ):
+            task = env_task
+    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
+    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
+    src_id = data.header.get("source_env_id", src_id)
+    tgt_id = data.header.get("target_env_id", tgt_id)
+    src_env = make_batched(src_id, 1, **src_kwargs)
+    tgt_env = make_batched(tgt_id, 1, **tgt_kwargs)
     data.check_dims(
         src_env.single_observation_space.shape[0],
         src_env.single_action_space.shape[0],
@@ -552,6 +625,7 @@ def train_model(
         "model": model,
         "dataset": file_digest(data_path),
         "model_config": model_cfg,
+        **spec_identity(preset),
     }
     run = Run(run_path(runs_root, pair, "model", model, seed), config)
     out = run.path / "model.pt"
@@ -576,6 +650,7 @@ def train_model(
             "seed": seed,
             "robot_state_indices_source": data.header["robot_state_indices_source"],
             "robot_state_indices_target": data.header["robot_state_indices_target"],
+            **spec_identity(preset),
         },
     )
     last = run.read_metrics()[-1] if run.read_metrics() else {}
@@ -609,13 +684,14 @@ def build_bank(
 ) -> Path:
     """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer."""
     preset = get_preset(pair)
+    pair = preset.name
     if episodes is not None:
         with named_options(bank_episodes="--episodes"):
             dataclasses.replace(preset.transfer, bank_episodes=episodes)
     check_seed("--seed", seed)
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
-    path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
-    name = env_id(preset.source_agent, preset.target_task)
+    path = policy_path(preset, preset.source_agent, preset.target_task, source_policy, runs_root)
+    name, env_kwargs = env_of(preset, preset.source_agent, preset.target_task)
     config = {
         "stage": "bank",
         "env_id": name,
@@ -623,6 +699,7 @@ def build_bank(
         "seed": seed,
         "match_keys": preset.bank_match_keys,
         "source_policy": file_digest(path),
+        **spec_identity(preset),
     }
     run = Run(
         run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
@@ -633,7 +710,7 @@ def build_bank(
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
-    env = _eval_env(name, episodes)
+    env = _eval_env(name, episodes, **env_kwargs)
     policy = load_policy(path)
     _check_policy(policy, name, env)
     run.start()
@@ -643,7 +720,7 @@ def build_bank(
         episodes,
         preset.bank_match_keys,
         seed=seed,
-        header={"env_id": name, "source_policy": str(path)},
+        header={"env_id": name, "source_policy": str(path), "pair": pair, **spec_identity(preset)},
     )
     save_bank(out, bank)
     run.finish(
@@ -675,6 +752,7 @@ def check_model_for(
                 f"model {path} was trained for another pair: its {key} is {meta[key]!r}, "
                 f"{preset.name}'s is {want!r}"
             )
+    _check_spec(preset, meta, f"model {path}")
     if method is not None and model.name != method:
         raise PvedError(f"model {path} is a {model.name!r} model, not {method!r}")
     have = meta.get("robot_state_indices_target")
@@ -694,11 +772,16 @@ def check_bank_for(
     of ``model``'s source, when given) against the pair's. A key a bank file lacks is not
     checked."""
     header = bank.header
-    want_env = env_id(preset.source_agent, preset.target_task)
+    want_env = preset.agent_env(preset.source_agent, preset.target_task).env_id
     if header.get("env_id") not in (None, want_env):
         raise PvedError(
             f"source bank {path} was made on {header['env_id']}, {preset.name}'s is {want_env}"
         )
+    if header.get("pair") not in (None, preset.name):
+        raise PvedError(
+            f"source bank {path} was made for pair {header['pair']!r}, not {preset.name!r}"
+        )
+    _check_spec(preset, header, f"source bank {path}")
     keys = header.get("match_keys")
     if keys is not None and list(keys) != list(preset.bank_match_keys):
         raise PvedError(
@@ -712,6 +795,37 @@ def check_bank_for(
             f"source bank {path} holds the source's robot state at {list(have)}, "
             f"the model reads it at {list(want)}"
         )
+
+
+def _check_spec(preset: PairPreset, header: dict[str, Any], what: str) -> None:
+    """Refuse a file made under another version of ``preset``'s spec (or for a built-in
+    pair when ``preset`` is a spec of its own, and the reverse): its ``spec`` digest
+    (:func:`pved.spec.spec_identity`) against the pair's."""
+    want = spec_identity(preset).get("spec")
+    have = header.get("spec")
+    if have != want:
+        raise PvedError(
+            f"{what} was made under another spec of {preset.name} (its spec digest "
+            f"{have or 'none: a built-in pair'}, this spec's {want or 'none: a built-in pair'})"
+        )
+
+
+def check_dataset_for(preset: PairPreset, header: dict[str, Any], path: Path | str) -> None:
+    """Refuse, in one line, a paired dataset collected for another pair or spec, or on
+    robot-state indices other than the spec names (its header against ``preset``)."""
+    if header.get("pair") not in (None, preset.name):
+        raise PvedError(
+            f"dataset {path} was collected for pair {header['pair']!r}, not {preset.name!r}"
+        )
+    _check_spec(preset, header, f"dataset {path}")
+    for side, agent in (("source", preset.source_agent), ("target", preset.target_agent)):
+        want = preset.robot_state_of(agent)
+        have = header.get(f"robot_state_indices_{side}")
+        if want is not None and have is not None and [int(i) for i in have] != list(want):
+            raise PvedError(
+                f"dataset {path} holds the {side}'s robot state at {list(have)}, the spec "
+                f"names {list(want)}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -782,6 +896,7 @@ def transfer_spec(
     check_shaping_action(shaping_action)
     check_int("--shaping-start", shaping_start, low=0)
     preset = get_preset(pair)
+    pair = preset.name
     # Every option lands in the transfer and PPO configs, which check their fields (a
     # negative or NaN beta, a negative count of final episodes): refused here, before a
     # file is read or a directory made, not after the training.
@@ -810,7 +925,7 @@ def transfer_spec(
             **given(total_steps=steps),
         )
     beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
-    name = env_id(preset.target_agent, preset.target_task)
+    name, env_kwargs = env_of(preset, preset.target_agent, preset.target_task)
     config: dict[str, Any] = {
         "stage": "transfer",
         "pair": pair,
@@ -819,11 +934,12 @@ def transfer_spec(
         "ppo": ppo,
         "eval_episodes": eval_episodes,
         "final_eval_episodes": final_episodes,
+        **spec_identity(preset),
     }
     shaping_inputs: tuple[Path, Path] | None = None
-    train_env_kwargs: dict[str, Any] = {}
+    train_env_kwargs: dict[str, Any] = dict(env_kwargs)
     if method == ORACLE:
-        train_env_kwargs = {"reward": "full"}
+        train_env_kwargs["reward"] = "full"
         config["train_reward"] = "full"
     elif method != NO_TRANSFER:
         model_class(method)  # an unknown method name fails here, before any file check
@@ -915,6 +1031,8 @@ def transfer(
     torch.set_num_threads(1)
     check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
     preset = get_preset(pair)
+    pair = preset.name
+    env_kwargs = env_of(preset, preset.target_agent, preset.target_task)[1]
     spec = transfer_spec(
         pair,
         method,
@@ -957,7 +1075,9 @@ def transfer(
             action=spec.shaping_action,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
-    eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
+    eval_fn = _eval_fn(
+        name, eval_episodes, 10**6 + seed, env_kwargs, info_keys=preset.eval_info_keys
+    )
     run.start()
     policy = train_ppo(
         env, ppo, run, eval_fn=eval_fn, progress=progress, checkpoint_every_s=checkpoint_every_s
@@ -975,7 +1095,7 @@ def transfer(
     )
     final = evaluate_policy(
         policy,
-        _eval_env(name, final_episodes),
+        _eval_env(name, final_episodes, **env_kwargs),
         episodes=final_episodes,
         seed=2 * 10**6 + seed,
         info_keys=preset.eval_info_keys,
@@ -993,20 +1113,42 @@ def transfer(
 
 def evaluate(
     policy_path: Path | str,
-    env_name: str,
+    env_name: str | None = None,
     *,
     episodes: int = 500,
     seed: int = 0,
     reward: str | None = None,
+    pair: str | None = None,
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
-    pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
+    pair's metric (e.g. the distance travelled along x for the locomotion pairs).
+
+    With ``pair`` (a name or a spec file), ``env_name`` is one of the pair's envs
+    (default: the target agent's on the target task), made with the spec's arguments,
+    and the metric is the pair's; without, any env id (a stock Gymnasium one reports
+    success, return and length)."""
     check_int("--episodes", episodes, low=1)
     check_seed("--seed", seed)
+    env_kwargs: dict[str, Any] = {}
+    info_keys: tuple[str, ...] = ()
+    if pair is not None:
+        preset = get_preset(pair)
+        agent, task = preset.target_agent, preset.target_task
+        if env_name is not None:
+            found = [e for e in preset.envs if e.env_id == env_name]
+            if not found:
+                ids = ", ".join(dict.fromkeys(e.env_id for e in preset.envs))
+                raise PvedError(f"env {env_name!r} is not one of {preset.name}'s: {ids}")
+            agent, task = found[0].agent, found[0].task
+        env_name, env_kwargs = env_of(preset, agent, task)
+        info_keys = preset.eval_info_keys
+    elif env_name is None:
+        raise PvedError("evaluate needs --env or --pair")
+    elif env_name.startswith("pved/"):
+        info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
     policy = load_policy(run_file(policy_path, "policy.pt", "policy"))
-    env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
+    env = _eval_env(env_name, episodes, **env_kwargs, **({"reward": reward} if reward else {}))
     _check_policy(policy, env_name, env)
-    info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
     return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
 
 
@@ -1055,19 +1197,15 @@ def _analysis_inputs(
     preset = get_preset(pair)
     model = load_model(run_file(model_path, "model.pt"))
     check_model_for(preset, model, model_path)
-    src = load_policy(
-        pretrained_policy_path(preset.source_agent, preset.target_task)
-        if source_policy is None
-        else run_file(source_policy, "policy.pt")
-    )
+    src = load_policy(policy_path(preset, preset.source_agent, preset.target_task, source_policy))
     tgt = load_policy(run_file(target_policy, "policy.pt"))
     return (
         preset,
         model,
         src,
         tgt,
-        env_id(preset.source_agent, preset.target_task),
-        env_id(preset.target_agent, preset.target_task),
+        preset.agent_env(preset.source_agent, preset.target_task).env_id,
+        preset.agent_env(preset.target_agent, preset.target_task).env_id,
     )
 
 
