@@ -56,6 +56,7 @@ def _cmd_train_policy(args: argparse.Namespace) -> None:
         runs_root=args.runs,
         eval_episodes=args.eval_episodes,
         checkpoint_every_s=args.checkpoint_seconds,
+        pair=args.pair,
     )
     print(path)
 
@@ -134,8 +135,39 @@ def _cmd_evaluate(args: argparse.Namespace) -> None:
     from pved.experiments.stages import evaluate
 
     _print_json(
-        evaluate(args.policy, args.env, episodes=args.episodes, seed=args.seed, reward=args.reward)
+        evaluate(
+            args.policy,
+            args.env,
+            episodes=args.episodes,
+            seed=args.seed,
+            reward=args.reward,
+            pair=args.pair,
+        )
     )
+
+
+def _cmd_pair(args: argparse.Namespace) -> None:
+    from pved.spec import dump_pair, load_pair
+
+    if args.action == "show":
+        print(dump_pair(load_pair(args.spec)), end="")
+    else:
+        from pved.experiments.pair_check import check_pair
+
+        print(check_pair(args.spec, args.runs))
+
+
+def _resolve_pairs(args: argparse.Namespace) -> None:
+    """A ``--pair`` given as a spec file is read here, before any work, and stands for its
+    name from then on: every stage looks pairs up by name (:func:`pved.spec.load_pair`
+    remembers the spec) and keeps their runs under it."""
+    from pved.spec import load_pair
+
+    pair = getattr(args, "pair", None)
+    if isinstance(pair, str):
+        args.pair = load_pair(pair).name
+    elif isinstance(pair, list):
+        args.pair = [load_pair(p).name for p in pair]
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
@@ -467,7 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
     pairs = " | ".join(sorted(PRESETS))
     models = " | ".join(sorted(MODELS))
     methods = f"{models} | {' | '.join(REFERENCE_METHODS)}"
-    pair_help = f"{pairs} (default: %(default)s)"
+    pair_help = f"{pairs}, or a pair spec file (.toml; docs/pairs.md) (default: %(default)s)"
     pair_tasks = "; ".join(
         f"{name}: {preset.training_task} | {preset.target_task}"
         for name, preset in sorted(PRESETS.items())
@@ -475,7 +507,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     from pved.rl.ppo import CHECKPOINT_SECONDS
 
-    parser: argparse.ArgumentParser = _Parser(prog="pved", description=__doc__.splitlines()[0])
+    parser: argparse.ArgumentParser = _Parser(
+        prog="pved",
+        description=__doc__.splitlines()[0],
+        epilog="Your own robots: write a pair spec file and give it as --pair SPEC.toml "
+        "(docs/pairs.md, 'Bring your own pair'; pved pair show reacher prints one).",
+    )
     sub = parser.add_subparsers(dest="verb", required=True)
 
     def add_checkpoint_seconds(p: argparse.ArgumentParser) -> None:
@@ -503,8 +540,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_list)
 
     p = add("train-policy", "PPO for any agent on any task, with a seed")
-    p.add_argument("--agent", required=True, help=" | ".join(AGENTS))
-    p.add_argument("--task", required=True, help=" | ".join(TASKS))
+    p.add_argument("--agent", required=True, help=" | ".join(AGENTS) + ", or a spec's agent")
+    p.add_argument("--task", required=True, help=" | ".join(TASKS) + ", or a spec's task")
+    p.add_argument(
+        "--pair",
+        help="the pair (a name or a spec file) whose env and PPO config the agent's task "
+        "takes (default: the first pair the agent is in)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, help="env steps (default: the preset's)")
     p.add_argument("--reward", help="env reward variant, e.g. full")
@@ -615,7 +657,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("evaluate", help="success rate / return of a saved policy")
     p.add_argument("--policy", type=Path, required=True, help="policy.pt or its run directory")
-    p.add_argument("--env", required=True)
+    p.add_argument(
+        "--env",
+        help="env id (with --pair: one of its envs; default its target agent's on the target task)",
+    )
+    p.add_argument("--pair", help="a pair (name or spec file): its env arguments and metric")
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--reward")
@@ -967,6 +1013,18 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--bank", type=Path, help="bank.npz or its run directory")
     p.set_defaults(func=_cmd_analyze)
 
+    p = add("pair", "show or check a pair spec (docs/pairs.md)")
+    actions = p.add_subparsers(dest="action", required=True)
+    a = actions.add_parser("show", help="print a pair's spec file (a built-in name or a file)")
+    a.add_argument("spec", help=f"{pairs}, or a spec file")
+    a = actions.add_parser(
+        "check",
+        help="make each env of a spec, check its robot-state indices, task keys, metric and "
+        "policies' dims, and print both agents' dims and what will be paired",
+    )
+    a.add_argument("spec", help=f"a spec file, or {pairs}")
+    p.set_defaults(func=_cmd_pair)
+
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")
     p.add_argument("--out", type=Path, default=Path("reports/reacher-demo"))
     p.add_argument("--steps", type=int, help="transfer env steps per run")
@@ -985,6 +1043,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(1)
     try:
         args = build_parser().parse_args(argv)
+        _resolve_pairs(args)
         args.func(args)
     except PvedError as exc:
         print(f"pved: error: {exc}", file=sys.stderr)
