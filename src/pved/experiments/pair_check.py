@@ -150,7 +150,7 @@ def _check(preset: PairPreset, envs: dict[tuple[str, str], BatchedEnv], runs_roo
             path = policy_path(preset, agent, task, None, runs_root)
         except PvedError as exc:
             if choice == TRAINED:  # not trained yet: a step to take, not a mistake
-                lines.append(f"  {agent}'s policy on {task}: not trained yet ({exc})")
+                lines.append(f"  {agent}'s policy on {task}: {str(exc).partition('(')[2][:-1]}")
                 continue
             raise PvedError(f"{preset.name}: {field}: {exc}") from None
         policy = load_policy(path)

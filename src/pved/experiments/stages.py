@@ -70,7 +70,7 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.policy import Policy, load_policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, PPOConfig, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, run_path, safe_torch_load
-from pved.spec import spec_identity
+from pved.spec import builtin_names, spec_identity
 from pved.transfer.shaping import (
     LatentShaping,
     ShapedBatchedEnv,
@@ -178,10 +178,10 @@ def policy_path(
     if choice == TRAINED:
         trained = run_path(runs_root, preset.name, "policy", f"{agent}-{task}", 0) / "policy.pt"
         if not trained.is_file():
+            spec = preset.name if preset.name in builtin_names() else "SPEC.toml"
             raise PvedError(
-                f"{agent}'s policy on {task} not found: {trained} (the spec says 'trained': "
-                f"run pved train-policy --pair {preset.name} --agent {agent} --task {task} "
-                "first, or give the policy)"
+                f"{agent}'s policy on {task} not found: {trained} (not trained yet: "
+                f"pved train-policy --pair {spec} --agent {agent} --task {task})"
             )
         return trained
     return run_file(choice, "policy.pt", f"{agent}'s policy on {task} (the spec's)")
