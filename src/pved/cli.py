@@ -1013,7 +1013,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--bank", type=Path, help="bank.npz or its run directory")
     p.set_defaults(func=_cmd_analyze)
 
-    p = add("pair", "show or check a pair spec (docs/pairs.md)")
+    p = sub.add_parser("pair", help="show or check a pair spec (docs/pairs.md)")
     actions = p.add_subparsers(dest="action", required=True)
     a = actions.add_parser("show", help="print a pair's spec file (a built-in name or a file)")
     a.add_argument("spec", help=f"{pairs}, or a spec file")
@@ -1023,6 +1023,12 @@ def build_parser() -> argparse.ArgumentParser:
         "policies' dims, and print both agents' dims and what will be paired",
     )
     a.add_argument("spec", help=f"a spec file, or {pairs}")
+    a.add_argument(
+        "--runs",
+        type=Path,
+        default=Path("runs"),
+        help="where the pair's trained policies are looked for (default: %(default)s)",
+    )
     p.set_defaults(func=_cmd_pair)
 
     p = add("demo", "the Reacher pair end to end on the demo budget", "runs/demo")

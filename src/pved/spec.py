@@ -60,8 +60,8 @@ def _is_file_argument(pair: str) -> bool:
 def load_pair(pair: str | Path) -> PairPreset:
     """The pair ``pair``: a built-in name, the name of a spec loaded before in this
     process, or the path of a spec file (``*.toml``), which is then remembered under its
-    name. A spec that takes a built-in pair's name must be that pair (run directories
-    are kept under the name)."""
+    name (the file read last, for a name two files share). A spec that takes a built-in
+    pair's name must be that pair (run directories are kept under the name)."""
     text = str(pair)
     if not _is_file_argument(text):
         if text in builtin_names():
@@ -79,8 +79,8 @@ def load_pair(pair: str | Path) -> PairPreset:
             f"spec {text}: name {preset.name!r} is a built-in pair's, but its {field} "
             "differs from it; give the spec another name"
         )
-    if preset.name in _LOADED and _LOADED[preset.name] != preset:
-        raise PvedError(f"spec {text}: another spec named {preset.name!r} is already loaded")
+    # the file read last stands for its name (an edited spec read again replaces the
+    # earlier one; what was made under that one is refused by its spec digest)
     _LOADED[preset.name] = preset
     return preset
 
