@@ -1,8 +1,10 @@
 """Typed configs: one preset per agent pair, holding the paper's Table 1 values.
 
 A preset composes the configs of every stage (policies, pairing, model, transfer,
-evaluation) so that ``pved <verb> --pair reacher`` needs no other argument. Stage
-configs are frozen dataclasses; overriding a field is ``dataclasses.replace``.
+evaluation) so that ``pved <verb> --pair reacher`` needs no other argument. Presets are
+read from pair spec files (:mod:`pved.spec`; the four built-in pairs' in
+``pved/pairs/``). Stage configs are frozen dataclasses; overriding a field is
+``dataclasses.replace``.
 """
 
 from __future__ import annotations
@@ -209,10 +211,12 @@ class PairPreset:
         for entry in self.envs:
             if (entry.agent, entry.task) == (agent, task):
                 return entry
+        if agent not in (self.source_agent, self.target_agent):
+            kind, value, known = "agent", agent, (self.source_agent, self.target_agent)
+        else:
+            kind, value, known = "task", task, (self.training_task, self.target_task)
         raise PvedError(
-            f"pair {self.name} has no env for {agent} on {task}; its agents are "
-            f"{self.source_agent} and {self.target_agent}, its tasks {self.training_task} "
-            f"and {self.target_task}"
+            f"unknown {kind} {value!r} for {self.name}; its {kind}s: {', '.join(known)}"
         )
 
     def robot_state_of(self, agent: str) -> tuple[int, ...] | None:
