@@ -17,8 +17,7 @@ import numpy as np
 from pved.config import PRETRAINED, TRAINED, PairPreset, get_preset
 from pved.envs import BatchedEnv, make_batched
 from pved.errors import PvedError
-from pved.experiments.stages import DEFAULT_RUNS, env_of, policy_path
-from pved.rl.policy import load_policy
+from pved.experiments.stages import DEFAULT_RUNS, env_of, load_agent_policy, policy_path
 
 #: ``evaluate_policy``'s results a metric can name besides ``<info key>_mean``.
 METRICS = ("return_mean", "length_mean", "completion_rate", "success_rate")
@@ -153,7 +152,7 @@ def _check(preset: PairPreset, envs: dict[tuple[str, str], BatchedEnv], runs_roo
                 lines.append(f"  {agent}'s policy on {task}: {str(exc).partition('(')[2][:-1]}")
                 continue
             raise PvedError(f"{preset.name}: {field}: {exc}") from None
-        policy = load_policy(path)
+        policy = load_agent_policy(path)
         env = envs[(agent, task)]
         obs_dim = env.single_observation_space.shape[0]
         act_dim = env.single_action_space.shape[0]

@@ -169,7 +169,7 @@ def policy_path(
     """The policy file ``agent`` acts with on ``task``: ``given`` (a file or its run
     directory), else what the pair's spec names: the policy shipped with pved, the
     pair's own ``pved train-policy`` run (seed 0, under ``runs_root``), or a file. Every
-    stage finds its policies here, and loads them with ``pved.rl.policy.load_policy``."""
+    stage finds its policies here, and reads them with :func:`load_agent_policy`."""
     if given is not None:
         return run_file(given, "policy.pt", f"{agent}'s policy")
     choice = preset.agent_env(agent, task).policy
@@ -185,6 +185,12 @@ def policy_path(
             )
         return trained
     return run_file(choice, "policy.pt", f"{agent}'s policy on {task} (the spec's)")
+
+
+def load_agent_policy(path: Path) -> Policy:
+    """The policy in file ``path`` (found by :func:`policy_path`): the one place a stage
+    reads a source or target policy, so that another policy format is added here."""
+    return load_policy(path)
 
 
 def _check_policy(policy: Policy, env_name: str, env: BatchedEnv) -> None:
@@ -404,7 +410,7 @@ def collect_pairs(
     check_writable("--runs", run.path)
     src_env = make_batched(src_id, cfg.num_envs, **src_kwargs)
     tgt_env = make_batched(tgt_id, cfg.num_envs, **tgt_kwargs)
-    src_pol, tgt_pol = load_policy(src_path), load_policy(tgt_path)
+    src_pol, tgt_pol = load_agent_policy(src_path), load_agent_policy(tgt_path)
     _check_policy(src_pol, src_id, src_env)
     _check_policy(tgt_pol, tgt_id, tgt_env)
     run.start()
@@ -711,7 +717,7 @@ def build_bank(
         return out
     check_writable("--runs", run.path)
     env = _eval_env(name, episodes, **env_kwargs)
-    policy = load_policy(path)
+    policy = load_agent_policy(path)
     _check_policy(policy, name, env)
     run.start()
     bank = build_source_bank(
@@ -1144,7 +1150,7 @@ def evaluate(
         raise PvedError("evaluate needs --env or --pair")
     elif env_name.startswith("pved/"):
         info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
-    policy = load_policy(run_file(policy_path, "policy.pt", "policy"))
+    policy = load_agent_policy(run_file(policy_path, "policy.pt", "policy"))
     env = _eval_env(env_name, episodes, **env_kwargs, **({"reward": reward} if reward else {}))
     _check_policy(policy, env_name, env)
     return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
@@ -1195,8 +1201,10 @@ def _analysis_inputs(
     preset = get_preset(pair)
     model = load_model(run_file(model_path, "model.pt"))
     check_model_for(preset, model, model_path)
-    src = load_policy(policy_path(preset, preset.source_agent, preset.target_task, source_policy))
-    tgt = load_policy(run_file(target_policy, "policy.pt"))
+    src = load_agent_policy(
+        policy_path(preset, preset.source_agent, preset.target_task, source_policy)
+    )
+    tgt = load_agent_policy(run_file(target_policy, "policy.pt"))
     return (
         preset,
         model,
