@@ -16,6 +16,7 @@ from helpers import run_cli
 from pved.config import PRESETS, PRETRAINED, get_preset
 from pved.envs.gym_adapter import GymnasiumBatch
 from pved.envs.registry import env_id
+from pved.errors import PvedError
 from pved.experiments import stages
 from pved.runs import Run, config_hash
 from pved.spec import builtin_names, dump_pair, load_pair, read_spec
@@ -152,6 +153,8 @@ def test_a_policy_of_the_wrong_dims_is_refused(
     refused(capsys, "pair", "check", spec, match="source.target.policy")
     refused(capsys, "build-bank", "--pair", spec, "--runs", tmp_path, match="policy dims")
     refused(capsys, "pair", "check", "no-such.toml", match="spec not found")
+    refused(capsys, "transfer", "--pair", spec, "--model", "oracle", "--runs", tmp_path,
+            match="no such variant")  # fmt: skip
     refused(capsys, "collect-pairs", "--pair", "nope", match="unknown pair 'nope'")
 
 
@@ -169,6 +172,16 @@ def test_gymnasium_batch_gives_each_copy_its_row_of_the_options() -> None:
     env.reset(seed=0, options={"goal": np.array([[1.0, 2.0], [3.0, 4.0]])})
     assert [list(o["goal"]) for o in seen] == [[1.0, 2.0], [3.0, 4.0]]
     assert env.dt == pytest.approx(0.04)
+
+
+def test_any_gymnasium_id_is_batched_module_form_included() -> None:
+    from pved.envs import make_batched
+
+    env = make_batched("gymnasium.envs.mujoco.reacher_v5:Reacher-v5", 3, robot_state=[0, 1, 6])
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (3, 10) and list(env.robot_state_indices) == [0, 1, 6]
+    with pytest.raises(PvedError, match="reports its robot state"):
+        make_batched("pved/Reacher3Reach-v0", 1, robot_state=[0])
 
 
 # -- two pairs of stock Gymnasium envs, from a spec file and the CLI alone -----------------

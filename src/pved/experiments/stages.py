@@ -943,6 +943,11 @@ def transfer_spec(
     shaping_inputs: tuple[Path, Path] | None = None
     train_env_kwargs: dict[str, Any] = dict(env_kwargs)
     if method == ORACLE:
+        if not name.startswith("pved/"):
+            raise PvedError(
+                f"the oracle trains on a pved env's full reward (reward='full'); {name} has "
+                "no such variant"
+            )
         train_env_kwargs["reward"] = "full"
         config["train_reward"] = "full"
     elif method != NO_TRANSFER:
