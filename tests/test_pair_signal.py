@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from helpers import run_cli
 from pved.analysis.pair_signal import format_signal, pair_signal
 from pved.errors import PvedError
 
@@ -34,3 +35,14 @@ def test_bad_options_are_refused_before_anything_is_collected(tmp_path: Path) ->
     with pytest.raises(PvedError, match="unknown pair"):
         pair_signal("nope", runs_root=tmp_path / "runs")
     assert not (tmp_path / "runs").exists()
+
+
+def test_pair_signal_verb_prints_the_table_and_its_reading(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, _ = run_cli(
+        capsys, "pair", "signal", "reacher", "--episodes", "20", "--runs", tmp_path / "runs"
+    )
+    assert code == 0
+    assert "| source → target | target → source | source → shuffled target |" in out
+    assert "The pairing relates the agents" in out

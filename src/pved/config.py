@@ -1,14 +1,15 @@
 """Typed configs: one preset per agent pair, holding the paper's Table 1 values.
 
 A preset composes the configs of every stage (policies, pairing, model, transfer,
-evaluation) so that ``pved <verb> --pair reacher`` needs no other argument. Stage
-configs are frozen dataclasses; overriding a field is ``dataclasses.replace``.
+evaluation) so that ``pved <verb> --pair reacher`` needs no other argument. Presets are
+read from pair spec files (:mod:`pved.spec`; the four built-in pairs' in
+``pved/pairs/``). Stage configs are frozen dataclasses; overriding a field is
+``dataclasses.replace``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -94,9 +95,34 @@ class TransferConfig:
 POINT_CODE_BETA_GRID: tuple[float, ...] = (0.1, 0.01, 0.001, 1.0, 10.0)
 
 
+#: ``AgentEnv.policy`` values that name no file: the policy shipped with pved
+#: (:mod:`pved.pretrained`), or the pair's own ``pved train-policy`` run (seed 0).
+PRETRAINED = "pretrained"
+TRAINED = "trained"
+
+
+@dataclass(frozen=True)
+class AgentEnv:
+    """One agent's environment on one task of a pair, and the policy it acts with there.
+
+    Attributes:
+        agent, task: the names run directories and files are kept under.
+        env_id: a Gymnasium id (``pved/...``, a stock one, or ``module:EnvId``).
+        kwargs: ``gymnasium.make`` arguments, as (name, value) pairs in name order.
+        policy: ``PRETRAINED``, ``TRAINED``, or the path of a policy file.
+    """
+
+    agent: str
+    task: str
+    env_id: str
+    kwargs: tuple[tuple[str, Any], ...] = ()
+    policy: str = PRETRAINED
+
+
 @dataclass(frozen=True)
 class PairPreset:
-    """Everything that defines one agent pair's experiment."""
+    """Everything that defines one agent pair's experiment (read from a pair spec file,
+    ``pved.spec``)."""
 
     name: str
     source_agent: str
@@ -149,6 +175,11 @@ class PairPreset:
         ("quick", 300_000),
         ("paper", 1_000_000),
     )
+    # Each agent's env on each task (four entries; ``agent_env``), and the observation
+    # indices of an agent's robot state where its env does not report them itself
+    # (a stock Gymnasium env): (agent, indices).
+    envs: tuple[AgentEnv, ...] = ()
+    robot_state: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def model_config(self, name: str, **overrides: Any) -> ModelConfig:
         """The config of model ``name`` for this pair: every field it shares with the
@@ -174,6 +205,24 @@ class PairPreset:
         if budget not in steps:
             raise PvedError(f"unknown budget {budget!r}; known budgets: {', '.join(steps)}")
         return steps[budget]
+
+    def agent_env(self, agent: str, task: str) -> AgentEnv:
+        """``agent``'s env on ``task``; :class:`PvedError` when the pair has none."""
+        for entry in self.envs:
+            if (entry.agent, entry.task) == (agent, task):
+                return entry
+        if agent not in (self.source_agent, self.target_agent):
+            kind, value, known = "agent", agent, (self.source_agent, self.target_agent)
+        else:
+            kind, value, known = "task", task, (self.training_task, self.target_task)
+        raise PvedError(
+            f"unknown {kind} {value!r} for {self.name}; its {kind}s: {', '.join(known)}"
+        )
+
+    def robot_state_of(self, agent: str) -> tuple[int, ...] | None:
+        """The observation indices of ``agent``'s robot state the spec names (None: its
+        envs report their own)."""
+        return dict(self.robot_state).get(agent)
 
     def policy_config(self, agent: str, task: str) -> PPOConfig:
         """The PPO config used to train ``agent`` on ``task`` for this pair."""
@@ -270,166 +319,30 @@ def get_budget(name: str) -> ProtocolBudget:
         raise PvedError(f"unknown budget {name!r}; known budgets: {', '.join(BUDGETS)}") from None
 
 
-def _reacher_preset() -> PairPreset:
-    ppo = PPOConfig()
-    return PairPreset(
-        name="reacher",
-        source_agent="Reacher3",
-        target_agent="Reacher4",
-        training_task="Reach",
-        target_task="Push",
-        # Table 1, Reachers: alpha1 = 1, alpha2 = 1, alpha3 = 10, beta = 0.1.
-        model=dataclasses.replace(PVEDConfig(), alpha1=1.0, alpha2=1.0, alpha3=10.0),
-        transfer=TransferConfig(beta=0.1, ppo=ppo),
-        policy=ppo,
-    )
-
-
-def _arm_preset() -> PairPreset:
-    ppo = PPOConfig()
-    return PairPreset(
-        name="jaco-fetch",
-        source_agent="Jaco",
-        target_agent="Fetch4",
-        training_task="Reach",
-        target_task="Peg",
-        # Table 1, Jaco3-Fetch: alpha1 = 1, alpha2 = 1, alpha3 = 10, beta = 0.01.
-        model=dataclasses.replace(PVEDConfig(), alpha1=1.0, alpha2=1.0, alpha3=10.0),
-        transfer=TransferConfig(beta=0.01, ppo=ppo),
-        # the same random reach target for both robots; target episodes are matched to
-        # the bank episode whose hole is nearest
-        shared_task_keys=("target",),
-        bank_match_keys=("hole",),
-        policy=ppo,
-        policy_overrides=(("Jaco", "Peg", dataclasses.replace(ppo, total_steps=1_000_000)),),
-    )
-
-
 EVAL_NUM_ENVS = 16  # env copies an evaluation runs on, at most (one batched pass)
-POLICY_EVAL_EVERY = 250_000  # env steps between the locomotion policies' evaluations
-
-
-def _locomotion_preset(
-    name: str,
-    source: str,
-    target: str,
-    alphas: tuple[float, float, float],
-    beta: float,
-    policy_steps: tuple[tuple[str, str, int], ...],
-    align: str = "subsample",
-    agent_policy_changes: Mapping[str, Mapping[str, Any]] | None = None,
-) -> PairPreset:
-    ppo = PPOConfig()
-    # The policies of these bodies train with CleanRL's MuJoCo network (64-64 tanh), which
-    # held its gait better than the paper's 3x64 ReLU in our Slope runs (docs/decisions.md);
-    # the transfer runs keep the paper's network.
-    policy = dataclasses.replace(
-        ppo, hidden_sizes=(64, 64), activation="tanh", eval_every=POLICY_EVAL_EVERY
-    )
-    return PairPreset(
-        name=name,
-        source_agent=source,
-        target_agent=target,
-        training_task="Slope",
-        target_task="Curve",
-        model=dataclasses.replace(
-            PVEDConfig(), alpha1=alphas[0], alpha2=alphas[1], alpha3=alphas[2]
-        ),
-        # Paper IV.A: mean distance along x in 1000 steps over 100 episodes, the final
-        # score. The learning curve's points take one episode per evaluation copy: 100
-        # 1000-step episodes every 50k steps cost twice the training's own env steps
-        # (docs/decisions.md, "Evaluation episodes on the locomotion pairs").
-        transfer=TransferConfig(
-            beta=beta, eval_episodes=EVAL_NUM_ENVS, final_eval_episodes=100, ppo=ppo
-        ),
-        # Both agents of a paired episode climb the same slope (paper IV.A).
-        shared_task_keys=("slope_deg",),
-        pairing=PairingConfig(align=align),
-        # Curve has no task parameter: bank episodes are drawn at random per episode.
-        bank_match_keys=(),
-        metric="x_position_mean",
-        # A body that stands still or falls at once drifts a few cm to a metre; without
-        # this, walker-hopper's tuning chose between such runs by centimetres (a beta at
-        # which the Hopper falls at the first step "beat" one at which it stands).
-        metric_resolution=0.5,
-        eval_info_keys=("x_position",),
-        policy=policy,
-        policy_overrides=tuple(
-            (
-                agent,
-                task,
-                dataclasses.replace(
-                    policy, **(agent_policy_changes or {}).get(agent, {}), total_steps=steps
-                ),
-            )
-            for agent, task, steps in policy_steps
-        ),
-        policy_keep_best=True,
-        policy_eval_episodes=50,
-        policy_stop_completion=0.98,
-    )
-
-
-PRESETS: dict[str, PairPreset] = {
-    "reacher": _reacher_preset(),
-    "jaco-fetch": _arm_preset(),
-    # Table 1, Walker2d-Hopper: alpha = 1, 1, 10; beta = 0.02.
-    "walker-hopper": _locomotion_preset(
-        "walker-hopper",
-        "Walker2d",
-        "Hopper",
-        (1.0, 1.0, 10.0),
-        0.02,
-        (
-            ("Walker2d", "Slope", 3_000_000),
-            ("Hopper", "Slope", 2_000_000),
-            ("Walker2d", "Curve", 3_000_000),
-        ),
-    ),
-    # Table 1, Humanoid-Ant: alpha = 2.5, 2.5, 15; beta = 0.01.
-    "humanoid-ant": _locomotion_preset(
-        "humanoid-ant",
-        "Humanoid",
-        "Ant",
-        (2.5, 2.5, 15.0),
-        0.01,
-        (
-            ("Humanoid", "Slope", 10_000_000),
-            ("Ant", "Slope", 5_000_000),
-            ("Humanoid", "Curve", 10_000_000),
-        ),
-        # Humanoid acts every 0.015 s, Ant every 0.05 s: pair the steps taken at the same
-        # moment of the climb (docs/decisions.md).
-        align="time",
-        # The 64-64 recipe's updates ran away on the Humanoid's 349 inputs (approx. KL > 1,
-        # clip fraction 0.9) and it never stood longer than ~120 steps; smaller and fewer
-        # Adam steps keep it up (docs/decisions.md, "Humanoid's PPO").
-        agent_policy_changes={
-            "Humanoid": {
-                "hidden_sizes": (256, 256),
-                "lr": 1e-4,
-                "minibatch_size": 512,
-                "init_log_std": -1.0,
-            }
-        },
-    ),
-}
 
 
 def preset_for_agent(agent: str) -> PairPreset:
-    """The first preset in which ``agent`` takes part (for its policies' PPO config)."""
-    for preset in PRESETS.values():
-        if agent in (preset.source_agent, preset.target_agent):
-            return preset
-    agents = sorted({a for p in PRESETS.values() for a in (p.source_agent, p.target_agent)})
-    raise PvedError(f"unknown agent {agent!r}; known agents: {', '.join(agents)}")
+    """The first pair (a loaded spec before the built-in ones) in which ``agent`` takes
+    part (for its policies' PPO config)."""
+    from pved.spec import preset_for_agent as find
+
+    return find(agent)
 
 
 def get_preset(pair: str) -> PairPreset:
-    """The preset of ``pair``; an unknown name raises :class:`PvedError` listing known ones."""
-    try:
-        return PRESETS[pair]
-    except KeyError:
-        raise PvedError(
-            f"unknown pair {pair!r}; known pairs: {', '.join(sorted(PRESETS))}"
-        ) from None
+    """The pair ``pair``: a built-in name, the name of a spec loaded before, or a spec
+    file (``pved.spec.load_pair``); an unknown one raises :class:`PvedError`."""
+    from pved.spec import load_pair
+
+    return load_pair(pair)
+
+
+def __getattr__(name: str) -> Any:
+    # ``PRESETS``: the built-in pairs, read from their spec files when first asked for
+    # (pved/pairs/*.toml), so that importing the configs reads no file
+    if name == "PRESETS":
+        from pved.spec import builtin_pairs
+
+        return builtin_pairs()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -26,12 +26,10 @@ from pved.analysis.tsne import (
 )
 from pved.checks import check_int, check_number, check_seed, check_writable
 from pved.config import PairPreset, get_preset
-from pved.envs.registry import env_id
 from pved.envs.terrain import CURVE_RAMP_LENGTH
-from pved.experiments.inputs import check_model_for
+from pved.experiments.inputs import check_model_for, policy_path
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
-from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import Policy, load_policy
 from pved.runs import atomic_write_json, run_file
 from pved.transfer.source_bank import bank_time_scale, env_dt
@@ -57,19 +55,15 @@ def analysis_inputs(
     preset = get_preset(pair)
     model = load_model(run_file(model_path, "model.pt"))
     check_model_for(preset, model, model_path)
-    src = load_policy(
-        pretrained_policy_path(preset.source_agent, preset.target_task)
-        if source_policy is None
-        else run_file(source_policy, "policy.pt")
-    )
+    src = load_policy(policy_path(preset, preset.source_agent, preset.target_task, source_policy))
     tgt = load_policy(run_file(target_policy, "policy.pt"))
     return AnalysisInputs(
         preset,
         model,
         src,
         tgt,
-        env_id(preset.source_agent, preset.target_task),
-        env_id(preset.target_agent, preset.target_task),
+        preset.agent_env(preset.source_agent, preset.target_task).env_id,
+        preset.agent_env(preset.target_agent, preset.target_task).env_id,
     )
 
 

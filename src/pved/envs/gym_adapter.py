@@ -58,6 +58,10 @@ class GymnasiumBatch(BatchedEnv):
             try:
                 self.envs = [gym.make(env_id, **kwargs) for _ in range(num_envs)]
             except gym.error.Error as exc:
+                # Gymnasium's own message names the id and, for a typo, the near ones
+                raise PvedError(f"unknown env id {env_id!r}: {exc}") from None
+            except (TypeError, ValueError, ImportError, AttributeError) as exc:
+                # an argument the env does not take, a module that does not import
                 raise PvedError(f"cannot make Gymnasium env {env_id!r}: {exc}") from None
         else:
             assert env_fns is not None
@@ -83,6 +87,15 @@ class GymnasiumBatch(BatchedEnv):
         self.robot_state_indices = (
             np.arange(obs_dim) if robot_state_indices is None else np.asarray(robot_state_indices)
         )
+        bad = [int(i) for i in self.robot_state_indices if not 0 <= int(i) < obs_dim]
+        if bad:
+            raise PvedError(
+                f"robot state index {bad[0]} is outside {self.env_id}'s observation "
+                f"(size {obs_dim})"
+            )
+        # the control period, for alignment by physical time (MuJoCo envs have one)
+        dt = getattr(first.unwrapped, "dt", None)
+        self.dt: float | None = None if dt is None else float(dt)
         spec_steps = first.spec.max_episode_steps if first.spec is not None else None
         self.max_episode_steps = int(spec_steps) if spec_steps is not None else 1000
         self._obs_dim = obs_dim
@@ -109,12 +122,23 @@ class GymnasiumBatch(BatchedEnv):
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, Info]:
+        # batched options (one row per copy, as the pairing passes shared task
+        # parameters) are handed to each copy as its own row
         results = [
-            env.reset(seed=None if seed is None else seed + i, options=options)
+            env.reset(seed=None if seed is None else seed + i, options=self._row(options, i))
             for i, env in enumerate(self.envs)
         ]
         obs = self._stack_obs([r[0] for r in results])
         return obs, self._stack_info([r[1] for r in results], self.num_envs)
+
+    def _row(self, options: dict[str, Any] | None, i: int) -> dict[str, Any] | None:
+        if options is None:
+            return None
+        out = {}
+        for key, value in options.items():
+            arr = np.asarray(value)
+            out[key] = arr[i] if arr.ndim > 0 and arr.shape[0] == self.num_envs else value
+        return out
 
     def step(
         self, actions: np.ndarray

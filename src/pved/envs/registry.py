@@ -8,10 +8,11 @@ are handed on from here, where the package's users have always found them.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from pved.env_ids import (
     AGENTS,
@@ -65,13 +66,35 @@ def make(env_id: str, **kwargs: Any) -> gym.Env[Any, Any]:
     return gym.make(env_id, **kwargs)
 
 
-def make_batched(env_id: str, num_envs: int, **kwargs: Any) -> BatchedEnv:
+def make_batched(
+    env_id: str, num_envs: int, *, robot_state: Sequence[int] | None = None, **kwargs: Any
+) -> BatchedEnv:
     """The batched form of ``env_id`` with ``num_envs`` copies (autoreset on).
 
     ``kwargs`` are the env's constructor arguments (e.g. ``reward="full"``, ``config=``).
+    Any other Gymnasium id (a stock one, or ``module:EnvId``, whose module registers it)
+    has no batched form of its own: it is batched by :class:`GymnasiumBatch` (its copies
+    stepped one after another), with ``robot_state`` as its robot-state indices
+    (default: the whole observation). A pved env reports its own; a ``robot_state``
+    given for one must be that.
     """
+    if not env_id.startswith(f"{NAMESPACE}/"):
+        from pved.envs.gym_adapter import GymnasiumBatch
+
+        state = None if robot_state is None else np.asarray(robot_state, dtype=np.int64)
+        return GymnasiumBatch(
+            env_id=env_id, num_envs=num_envs, make_kwargs=kwargs, robot_state_indices=state
+        )
     entry = get_entry(env_id)
     _check_kwargs(entry, kwargs)
     cls = _load(entry.batched_entry_point)
     env: BatchedEnv = cls(num_envs=num_envs, **{**entry.kwargs, **kwargs})
+    if robot_state is not None and [int(i) for i in robot_state] != [
+        int(i) for i in env.robot_state_indices
+    ]:
+        env.close()
+        raise PvedError(
+            f"{env_id} reports its robot state at {[int(i) for i in env.robot_state_indices]}, "
+            f"not {[int(i) for i in robot_state]}; give no robot_state for a pved env"
+        )
     return env

@@ -9,14 +9,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from pved.config import PairPreset, get_preset
-from pved.env_ids import env_id
+from pved.config import PRETRAINED, TRAINED, PairPreset, get_preset
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
-from pved.runs import run_path
+from pved.pretrained import pretrained_policy_path
+from pved.runs import run_file, run_path
+from pved.spec import builtin_names, spec_identity
 from pved.transfer.source_bank import SourceBank
 
 DEFAULT_RUNS = Path("runs")
@@ -24,14 +26,56 @@ DEFAULT_RUNS = Path("runs")
 
 def default_dataset_path(pair: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0) -> Path:
     """The pair's paired dataset of its preset's alignment (``collect_pairs``' output)."""
-    return run_path(runs_root, pair, "pairs", get_preset(pair).pairing.align, seed) / "pairs.npz"
+    preset = get_preset(pair)
+    return run_path(runs_root, preset.name, "pairs", preset.pairing.align, seed) / "pairs.npz"
 
 
 def default_model_path(
     pair: str, model: str, runs_root: Path = DEFAULT_RUNS, seed: int = 0
 ) -> Path:
     """The pair's ``model`` trained by ``train_model`` with ``seed``."""
-    return run_path(runs_root, pair, "model", model, seed) / "model.pt"
+    return run_path(runs_root, get_preset(pair).name, "model", model, seed) / "model.pt"
+
+
+def env_of(preset: PairPreset, agent: str, task: str) -> tuple[str, dict[str, Any]]:
+    """``agent``'s env on ``task`` in ``preset``: its id, and the arguments
+    :func:`~pved.envs.make_batched` takes for it (the spec's ``kwargs``, and its
+    ``robot_state`` where the spec names one)."""
+    entry = preset.agent_env(agent, task)
+    kwargs: dict[str, Any] = dict(entry.kwargs)
+    state = preset.robot_state_of(agent)
+    if state is not None:
+        kwargs["robot_state"] = state
+    return entry.env_id, kwargs
+
+
+def policy_path(
+    preset: PairPreset,
+    agent: str,
+    task: str,
+    given: Path | str | None = None,
+    runs_root: Path = DEFAULT_RUNS,
+) -> Path:
+    """The policy file ``agent`` acts with on ``task``: ``given`` (a file or its run
+    directory), else what the pair's spec names: the policy shipped with pved, the
+    pair's own ``pved train-policy`` run (seed 0, under ``runs_root``), or a file (a pved
+    policy or a Stable-Baselines3 ``.zip``). Every stage finds its policies here and reads
+    them with :func:`pved.rl.external.load_policy_file`."""
+    if given is not None:
+        return run_file(given, "policy.pt", f"{agent}'s policy")
+    choice = preset.agent_env(agent, task).policy
+    if choice == PRETRAINED:
+        return pretrained_policy_path(agent, task)
+    if choice == TRAINED:
+        trained = run_path(runs_root, preset.name, "policy", f"{agent}-{task}", 0) / "policy.pt"
+        if not trained.is_file():
+            spec = preset.name if preset.name in builtin_names() else "SPEC.toml"
+            raise PvedError(
+                f"{agent}'s policy on {task} not found: {trained} (not trained yet: "
+                f"pved train-policy --pair {spec} --agent {agent} --task {task})"
+            )
+        return trained
+    return run_file(choice, "policy.pt", f"{agent}'s policy on {task} (the spec's)")
 
 
 def check_model_for(
@@ -57,6 +101,7 @@ def check_model_for(
                 f"model {path} was trained for another pair: its {key} is {meta[key]!r}, "
                 f"{preset.name}'s is {want!r}"
             )
+    check_spec(preset, meta, f"model {path}")
     if method is not None and model.name != method:
         raise PvedError(f"model {path} is a {model.name!r} model, not {method!r}")
     have = meta.get("robot_state_indices_target")
@@ -76,11 +121,12 @@ def check_bank_for(
     of ``model``'s source, when given) against the pair's. A key a bank file lacks is not
     checked."""
     header = bank.header
-    want_env = env_id(preset.source_agent, preset.target_task)
+    want_env = preset.agent_env(preset.source_agent, preset.target_task).env_id
     if header.get("env_id") not in (None, want_env):
         raise PvedError(
             f"source bank {path} was made on {header['env_id']}, {preset.name}'s is {want_env}"
         )
+    check_spec(preset, header, f"source bank {path}")
     keys = header.get("match_keys")
     if keys is not None and list(keys) != list(preset.bank_match_keys):
         raise PvedError(
@@ -94,3 +140,34 @@ def check_bank_for(
             f"source bank {path} holds the source's robot state at {list(have)}, "
             f"the model reads it at {list(want)}"
         )
+
+
+def check_spec(preset: PairPreset, header: dict[str, Any], what: str) -> None:
+    """Refuse a file made under another version of ``preset``'s spec (or for a built-in
+    pair when ``preset`` is a spec of its own, and the reverse): its ``spec`` digest
+    (:func:`pved.spec.spec_identity`) against the pair's."""
+    want = spec_identity(preset).get("spec")
+    have = header.get("spec")
+    if have != want:
+        raise PvedError(
+            f"{what} was made under another spec of {preset.name} (its spec digest "
+            f"{have or 'none: a built-in pair'}, this spec's {want or 'none: a built-in pair'})"
+        )
+
+
+def check_dataset_for(preset: PairPreset, header: dict[str, Any], path: Path | str) -> None:
+    """Refuse, in one line, a paired dataset collected for another pair or spec, or on
+    robot-state indices other than the spec names (its header against ``preset``)."""
+    if header.get("pair") not in (None, preset.name):
+        raise PvedError(
+            f"dataset {path} was collected for pair {header['pair']!r}, not {preset.name!r}"
+        )
+    check_spec(preset, header, f"dataset {path}")
+    for side, agent in (("source", preset.source_agent), ("target", preset.target_agent)):
+        want = preset.robot_state_of(agent)
+        have = header.get(f"robot_state_indices_{side}")
+        if want is not None and have is not None and [int(i) for i in have] != list(want):
+            raise PvedError(
+                f"dataset {path} holds the {side}'s robot state at {list(have)}, the spec "
+                f"names {list(want)}"
+            )

@@ -27,13 +27,16 @@ from pved import __version__
 from pved.checks import check_int, check_seed, check_writable, given, named_options
 from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
 from pved.envs import BatchedEnv, make_batched
-from pved.envs.registry import env_id, get_entry
+from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
 from pved.experiments.inputs import (
     DEFAULT_RUNS,
     check_bank_for,
+    check_dataset_for,
     check_model_for,
     default_dataset_path,
+    env_of,
+    policy_path,
 )
 from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
 from pved.experiments.transfer_spec import transfer_spec
@@ -56,12 +59,12 @@ from pved.pairing.rounds import (
     dtw_rounds,
     phase_alignment,
 )
-from pved.pretrained import pretrained_policy_path
 from pved.rl.evaluate import evaluate_policy
 from pved.rl.external import load_policy_file
 from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
+from pved.spec import spec_identity
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
@@ -78,12 +81,6 @@ def _eval_env(env_name: str, episodes: int, **kwargs: Any) -> BatchedEnv:
     """The batched env evaluations run on: at most ``EVAL_NUM_ENVS`` copies, and no more
     copies than episodes (a copy without an episode to run would still be stepped)."""
     return make_batched(env_name, max(1, min(EVAL_NUM_ENVS, episodes)), **kwargs)
-
-
-def _policy_or_pretrained(path: Path | str | None, agent: str, task: str) -> Path:
-    if path is None:
-        return pretrained_policy_path(agent, task)
-    return run_file(path, "policy.pt", f"{agent}'s policy")
 
 
 def _eval_fn(
@@ -116,8 +113,12 @@ def train_policy(
     eval_episodes: int | None = None,
     progress: bool = True,
     checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
+    pair: str | None = None,
 ) -> Path:
     """PPO for any agent on any task (``pved train-policy``). Returns the policy file.
+
+    ``pair`` (a name or a spec file) is the pair whose env and PPO config the agent's
+    task takes (default: the first pair the agent is in).
 
     Evaluated every ``eval_every`` steps of the pair's PPO config on ``eval_episodes``
     (default: the preset's ``policy_eval_episodes``). With the preset's
@@ -125,8 +126,13 @@ def train_policy(
     (the end of training included) is the one saved, and ``result.json`` says which step
     it came from; judge it on fresh episodes (``pved evaluate``), not on these.
     ``checkpoint_every_s``: wall-clock seconds between checkpoints (:func:`train_ppo`)."""
-    preset = preset_for_agent(agent)
-    name = env_id(agent, task)
+    preset = preset_for_agent(agent) if pair is None else get_preset(pair)
+    if agent not in (preset.source_agent, preset.target_agent):
+        raise PvedError(
+            f"unknown agent {agent!r} for {preset.name}: its agents are {preset.source_agent} "
+            f"and {preset.target_agent}"
+        )
+    name, spec_kwargs = env_of(preset, agent, task)
     with named_options(seed="--seed", total_steps="--steps"):
         ppo = dataclasses.replace(
             preset.policy_config(agent, task), seed=seed, **given(total_steps=steps)
@@ -139,7 +145,9 @@ def train_policy(
     check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
     if reward is not None and not isinstance(reward, str):
         raise OptionError("--reward", reward, "the name of a reward variant")
-    env_kwargs = {"reward": reward} if reward else {}
+    state = spec_kwargs.pop("robot_state", None)
+    # the spec's env arguments (none for a built-in pair's: their hashes stand)
+    env_kwargs = {**spec_kwargs, **({"reward": reward} if reward else {})}
     config = {"stage": "policy", "env_id": name, "env_kwargs": env_kwargs, "ppo": ppo}
     run = Run(run_path(runs_root, preset.name, "policy", f"{agent}-{task}", seed), config)
     policy_file = run.path / "policy.pt"
@@ -147,7 +155,7 @@ def train_policy(
         return policy_file
     check_writable("--runs", run.path)
     # the envs check the reward variant: made before the run directory is
-    env = make_batched(name, ppo.num_envs, **env_kwargs)
+    env = make_batched(name, ppo.num_envs, robot_state=state, **env_kwargs)
     eval_fn = _eval_fn(name, episodes, seed + 10**6, env_kwargs, preset.eval_info_keys)
     run.start()
     metadata = {
@@ -237,8 +245,13 @@ def collect_pairs(
     seen the target task's states, so transfer with it says what the training task's
     coverage costs. Both agents of a target-task pair share the parameters a bank is
     matched on (``bank_match_keys``: the hole, the button), as the training task's share
-    ``shared_task_keys``."""
+    ``shared_task_keys``. A pair whose envs report no shared parameter (``[tasks]
+    shared = []``, e.g. two stock Gymnasium envs) pairs the episodes by seed alone:
+    the k-th episodes of both agents start from resets with the same seed.
+
+    ``pair`` is a pair's name or a spec file (:func:`pved.spec.load_pair`)."""
     preset = get_preset(pair)
+    pair = preset.name
     cfg = preset.pairing
     # the options checked as the pairing config checks its own fields; the run's config
     # keeps the preset's pairing config (its hash is that of the runs made before)
@@ -258,10 +271,14 @@ def collect_pairs(
         )
     on_training_task = task == preset.training_task
     shared_task_keys = preset.shared_task_keys if on_training_task else preset.bank_match_keys
-    src_path = None if recorded else _policy_or_pretrained(source_policy, preset.source_agent, task)
-    tgt_path = _policy_or_pretrained(target_policy, preset.target_agent, task)
-    src_id = env_id(preset.source_agent, task)
-    tgt_id = env_id(preset.target_agent, task)
+    src_path = (
+        None
+        if recorded
+        else policy_path(preset, preset.source_agent, task, source_policy, runs_root)
+    )
+    tgt_path = policy_path(preset, preset.target_agent, task, target_policy, runs_root)
+    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
+    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
     config = {
         "stage": "pairs",
         "pair": pair,
@@ -270,6 +287,7 @@ def collect_pairs(
         "align": align,
         "pairing": cfg,
         "target_policy": file_digest(tgt_path),
+        **spec_identity(preset),
     }
     if recorded is None:
         assert src_path is not None
@@ -286,8 +304,8 @@ def collect_pairs(
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
-    src_env = make_batched(src_id, cfg.num_envs)
-    tgt_env = make_batched(tgt_id, cfg.num_envs)
+    src_env = make_batched(src_id, cfg.num_envs, **src_kwargs)
+    tgt_env = make_batched(tgt_id, cfg.num_envs, **tgt_kwargs)
     tgt_pol = load_policy_file(tgt_path, env=tgt_env, env_name=tgt_id)
     if recorded is None:
         assert src_path is not None
@@ -322,6 +340,7 @@ def collect_pairs(
         "target_agent": preset.target_agent,
         "source_env_id": src_id,
         "target_env_id": tgt_id,
+        **spec_identity(preset),
         **(
             {"source_policy": str(src_path)}
             if recorded is None
@@ -401,8 +420,10 @@ def train_model(
     runs_root: Path = DEFAULT_RUNS,
     progress: bool = True,
 ) -> Path:
-    """Fit a shared-space model on a paired dataset (``pved train-model``)."""
+    """Fit a shared-space model on a paired dataset (``pved train-model``). A dataset
+    collected for another pair, agents or spec is refused before the fit."""
     preset = get_preset(pair)
+    pair = preset.name
     with named_options(epochs="--epochs", seed="--seed"):
         model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     data_path = (
@@ -412,11 +433,21 @@ def train_model(
     )
     data = load_dataset(data_path)
     data.check_agents(preset.source_agent, preset.target_agent)
+    check_dataset_for(preset, data.header, data_path)
     # the envs the pairs were collected on: the training task's unless `--task` chose another
-    src_id = data.header.get("source_env_id", env_id(preset.source_agent, preset.training_task))
-    tgt_id = data.header.get("target_env_id", env_id(preset.target_agent, preset.training_task))
-    src_env = make_batched(src_id, 1)
-    tgt_env = make_batched(tgt_id, 1)
+    task = preset.training_task
+    for env_task in (preset.training_task, preset.target_task):
+        if (
+            data.header.get("target_env_id")
+            == preset.agent_env(preset.target_agent, env_task).env_id
+        ):
+            task = env_task
+    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
+    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
+    src_id = data.header.get("source_env_id", src_id)
+    tgt_id = data.header.get("target_env_id", tgt_id)
+    src_env = make_batched(src_id, 1, **src_kwargs)
+    tgt_env = make_batched(tgt_id, 1, **tgt_kwargs)
     data.check_dims(
         src_env.single_observation_space.shape[0],
         src_env.single_action_space.shape[0],
@@ -429,6 +460,7 @@ def train_model(
         "model": model,
         "dataset": file_digest(data_path),
         "model_config": model_cfg,
+        **spec_identity(preset),
     }
     run = Run(run_path(runs_root, pair, "model", model, seed), config)
     out = run.path / "model.pt"
@@ -453,6 +485,7 @@ def train_model(
             "seed": seed,
             "robot_state_indices_source": data.header["robot_state_indices_source"],
             "robot_state_indices_target": data.header["robot_state_indices_target"],
+            **spec_identity(preset),
         },
     )
     last = run.read_metrics()[-1] if run.read_metrics() else {}
@@ -489,6 +522,7 @@ def build_bank(
     ``source_dataset`` (a Minari dataset id or folder) its recorded episodes instead
     (default all; ``episodes`` the first ones)."""
     preset = get_preset(pair)
+    pair = preset.name
     if episodes is not None:
         with named_options(bank_episodes="--episodes"):
             dataclasses.replace(preset.transfer, bank_episodes=episodes)
@@ -498,16 +532,19 @@ def build_bank(
     if recorded is not None and episodes is None:
         episodes = recorded.episodes
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
-    name = env_id(preset.source_agent, preset.target_task)
+    name, env_kwargs = env_of(preset, preset.source_agent, preset.target_task)
     config: dict[str, Any] = {
         "stage": "bank",
         "env_id": name,
         "episodes": episodes,
         "seed": seed,
         "match_keys": preset.bank_match_keys,
+        **spec_identity(preset),
     }
     if recorded is None:
-        path = _policy_or_pretrained(source_policy, preset.source_agent, preset.target_task)
+        path = policy_path(
+            preset, preset.source_agent, preset.target_task, source_policy, runs_root
+        )
         config["source_policy"] = file_digest(path)
     else:
         config["source_dataset"] = recorded.provenance["digest"]
@@ -520,7 +557,10 @@ def build_bank(
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
-    env = _eval_env(name, episodes)
+    env = _eval_env(name, episodes, **env_kwargs)
+    # a spec's digest only for a pair of its own: a built-in pair's bank is the bytes it
+    # always was, so the transfer runs that hash it keep their configs
+    identity = spec_identity(preset)
     if recorded is None:
         policy = load_policy_file(path, env=env, env_name=name)
         run.start()
@@ -530,7 +570,7 @@ def build_bank(
             episodes,
             preset.bank_match_keys,
             seed=seed,
-            header={"env_id": name, "source_policy": str(path)},
+            header={"env_id": name, "source_policy": str(path), **identity},
         )
     else:
         eps = recorded_episodes(recorded, name, env, preset.bank_match_keys, episodes)
@@ -539,7 +579,7 @@ def build_bank(
             eps,
             preset.bank_match_keys,
             env.robot_state_indices,
-            header={"env_id": name, "source_dataset": recorded.provenance},
+            header={"env_id": name, "source_dataset": recorded.provenance, **identity},
             dt=getattr(env, "dt", None),
         )
     save_bank(out, bank)
@@ -595,6 +635,8 @@ def transfer(
     torch.set_num_threads(1)
     check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
     preset = get_preset(pair)
+    pair = preset.name
+    env_kwargs = env_of(preset, preset.target_agent, preset.target_task)[1]
     spec = transfer_spec(
         pair,
         method,
@@ -640,7 +682,9 @@ def transfer(
             gamma=ppo.gamma,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
-    eval_fn = _eval_fn(name, eval_episodes, 10**6 + seed, info_keys=preset.eval_info_keys)
+    eval_fn = _eval_fn(
+        name, eval_episodes, 10**6 + seed, env_kwargs, info_keys=preset.eval_info_keys
+    )
     run.start()
     policy = train_ppo(
         env, ppo, run, eval_fn=eval_fn, progress=progress, checkpoint_every_s=checkpoint_every_s
@@ -658,7 +702,7 @@ def transfer(
     )
     final = evaluate_policy(
         policy,
-        _eval_env(name, final_episodes),
+        _eval_env(name, final_episodes, **env_kwargs),
         episodes=final_episodes,
         seed=2 * 10**6 + seed,
         info_keys=preset.eval_info_keys,
@@ -676,21 +720,43 @@ def transfer(
 
 def evaluate(
     policy_path: Path | str,
-    env_name: str,
+    env_name: str | None = None,
     *,
     episodes: int = 500,
     seed: int = 0,
     reward: str | None = None,
+    pair: str | None = None,
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
-    pair's metric (e.g. the distance travelled along x for the locomotion pairs)."""
+    pair's metric (e.g. the distance travelled along x for the locomotion pairs).
+
+    With ``pair`` (a name or a spec file), ``env_name`` is one of the pair's envs
+    (default: the target agent's on the target task), made with the spec's arguments,
+    and the metric is the pair's; without, any env id (a stock Gymnasium one reports
+    success, return and length)."""
     check_int("--episodes", episodes, low=1)
     check_seed("--seed", seed)
-    env = _eval_env(env_name, episodes, **({"reward": reward} if reward else {}))
+    env_kwargs: dict[str, Any] = {}
+    info_keys: tuple[str, ...] = ()
+    if pair is not None:
+        preset = get_preset(pair)
+        agent, task = preset.target_agent, preset.target_task
+        if env_name is not None:
+            found = [e for e in preset.envs if e.env_id == env_name]
+            if not found:
+                ids = ", ".join(dict.fromkeys(e.env_id for e in preset.envs))
+                raise PvedError(f"env {env_name!r} is not one of {preset.name}'s: {ids}")
+            agent, task = found[0].agent, found[0].task
+        env_name, env_kwargs = env_of(preset, agent, task)
+        info_keys = preset.eval_info_keys
+    elif env_name is None:
+        raise PvedError("evaluate needs --env or --pair")
+    elif env_name.startswith("pved/"):
+        info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
+    env = _eval_env(env_name, episodes, **env_kwargs, **({"reward": reward} if reward else {}))
     policy = load_policy_file(
         run_file(policy_path, "policy.pt", "policy"), env=env, env_name=env_name
     )
-    info_keys = preset_for_agent(get_entry(env_name).agent).eval_info_keys
     return evaluate_policy(policy, env, episodes=episodes, seed=seed, info_keys=info_keys)
 
 

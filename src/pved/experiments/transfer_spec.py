@@ -14,11 +14,11 @@ from typing import Any
 
 from pved.checks import check_int, given, named_options
 from pved.config import get_preset
-from pved.env_ids import env_id
 from pved.errors import PvedError
-from pved.experiments.inputs import DEFAULT_RUNS, default_model_path
+from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
+from pved.spec import spec_identity
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import check_shaping_action, check_shaping_form
 
@@ -93,6 +93,7 @@ def transfer_spec(
     check_shaping_action(shaping_action)
     check_int("--shaping-start", shaping_start, low=0)
     preset = get_preset(pair)
+    pair = preset.name
     # Every option lands in the transfer and PPO configs, which check their fields (a
     # negative or NaN beta, a negative count of final episodes): refused here, before a
     # file is read or a directory made, not after the training.
@@ -121,7 +122,7 @@ def transfer_spec(
             **given(total_steps=steps),
         )
     beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
-    name = env_id(preset.target_agent, preset.target_task)
+    name, env_kwargs = env_of(preset, preset.target_agent, preset.target_task)
     config: dict[str, Any] = {
         "stage": "transfer",
         "pair": pair,
@@ -130,11 +131,17 @@ def transfer_spec(
         "ppo": ppo,
         "eval_episodes": eval_episodes,
         "final_eval_episodes": final_episodes,
+        **spec_identity(preset),
     }
     shaping_inputs: tuple[Path, Path] | None = None
-    train_env_kwargs: dict[str, Any] = {}
+    train_env_kwargs: dict[str, Any] = dict(env_kwargs)
     if recipe.train_reward == "full":
-        train_env_kwargs = {"reward": "full"}
+        if not name.startswith("pved/"):
+            raise PvedError(
+                f"the oracle trains on a pved env's full reward (reward='full'); {name} has "
+                "no such variant"
+            )
+        train_env_kwargs["reward"] = "full"
         config["train_reward"] = "full"
     if recipe.model is not None:
         m_path = (
