@@ -5,22 +5,23 @@ comes from the bank (``source_bank.py``), which is fixed for the whole run, so i
 posterior q_φS depends on nothing the target does: :func:`encode_bank` encodes every bank
 row once, and each step looks the posteriors up (:meth:`EncodedBank.lookup`) and encodes
 only the target's rows. Until 2026-12-05 both halves were encoded at every step, which
-cost reacher, whose physics is cheapest, a fifth of plain PPO's rate
-(docs/results.md, "What the shaping costs a run").
+cost reacher, whose physics is cheapest, a fifth of plain PPO's rate; most of what is
+left is torch's per-operator overhead on the target's 16 rows (docs/results.md, "What
+the shaping costs a run").
 
 The looked-up posteriors are the per-step encoder's to the bit, so the term and the runs
 are unchanged and no config key marks the change. What that takes (measured with torch's
-MKL on this project's machine): a row's product in the encoder's layers does not depend
-on its place in a batch, but MKL picks its kernel by the batch's row count and its
-thread count. On one thread (PPO's) a row came out alike in every batch of 16 to 20,000
-rows, a multiple of 16 (each preset's encoder shapes are tested), but otherwise alone or
-as a batch's 17th row; on two threads, 16 rows came out otherwise than 32 or 512. So the
-bank is encoded on the caller's threads (as the per-step encode ran), in batches of the
-row count the shaping is called with (a step's copies, 16 in every transfer run), or of
-a multiple of it up to :data:`SINGLE_THREAD_ROWS` on one thread, the last batch padded
-with copies of the last row. A caller whose batches change size (the Gymnasium wrapper's
-single env, encoded :data:`MIN_BATCH_ROWS` rows at a time) gets the term to float32
-rounding (tests/test_shaping_cache.py).
+MKL on this project's machine): MKL picks its matrix kernel by the batch's row count and
+by its thread count, and may round a row otherwise under another. On one thread (PPO's)
+a row came out alike in every batch of 16 to 4,096 rows, a multiple of 16 (each
+preset's encoder shapes are tested), and alike wherever it sat in a 16-row batch, but
+otherwise alone or as a batch's 17th row; on two threads, 16 rows came out otherwise
+than 32 or 512. So the bank is encoded on the caller's threads (as the per-step encode
+ran), in batches of the row count the shaping is called with (a step's copies, 16 in
+every transfer run), or of a multiple of it up to :data:`SINGLE_THREAD_ROWS` on one
+thread, the last batch padded with copies of the last row. A caller whose batches
+differ in size (the Gymnasium wrapper's single env, encoded :data:`MIN_BATCH_ROWS` rows
+at a time) gets the term to float32 rounding (tests/test_shaping_cache.py).
 """
 
 from __future__ import annotations
