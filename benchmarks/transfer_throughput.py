@@ -7,12 +7,17 @@ stepped with random actions (MuJoCo plus the task's numpy logic); (3) plain PPO 
 the pair's transfer config; (4) the same PPO on the env wrapped in Eq. 10's shaping, with a
 PVED of the pair's architecture and a source bank of the shipped source policy's rollouts.
 The model is untrained: the shaping's cost is the forward passes, which do not depend on
-the weights. Evaluations and checkpoints are off, so (3) and (4) time training alone.
+the weights. Evaluations and checkpoints are off, so (3) and (4) time training alone; (4)
+includes encoding the bank's source half, once per run (``pved.transfer.source_cache``).
+(3) and (4) alternate ``--repeats`` times and each reports its median rate, so a load
+that comes and goes on a shared machine weighs on both alike. Rates are per second of
+this process's CPU time unless ``--clock wall`` (see ``CLOCKS``).
 
 Prints one line per pair and the ratios ``shaped/ppo`` (the goal: at least 0.85) and
 ``ppo/raw``.
 
-    .venv/bin/python benchmarks/transfer_throughput.py [--steps 16384] [--pairs reacher ...]
+    .venv/bin/python benchmarks/transfer_throughput.py [--steps 16384] [--repeats 3]
+        [--clock cpu|wall] [--pairs reacher ...]
 """
 
 from __future__ import annotations
@@ -23,8 +28,13 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
+# pved first: it pins the BLAS kernels (pved.blas) only for the libraries loaded after it,
+# and the runs this times compute on the pinned ones
+import pved  # noqa: E402, F401, I001
+
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import statistics  # noqa: E402
 import time  # noqa: E402
 
 import mujoco  # noqa: E402
@@ -48,18 +58,25 @@ from pved.transfer.source_bank import (  # noqa: E402
 BANK_EPISODES = 16
 
 
+#: What the rates are measured on: "cpu" (the default), this process's CPU time, which on
+#: a machine shared with other jobs counts what the run itself cost, not the time others
+#: held the core (one thread here, so on an idle core the two agree); "wall", the clock.
+CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
+clock = CLOCKS["cpu"]
+
+
 def raw_mujoco_rate(env: BatchedEnv, steps: int) -> float:
     """Env steps/s of a bare ``mj_step(nstep=frame_skip)`` loop over the env's MjData."""
     model, datas = env.model, env.datas  # type: ignore[attr-defined]
     nstep = int(env.frame_skip)  # type: ignore[attr-defined]
     ctrl = np.random.default_rng(0).uniform(-0.1, 0.1, size=(len(datas), model.nu))
     rounds = max(1, steps // len(datas))
-    t0 = time.perf_counter()
+    t0 = clock()
     for _ in range(rounds):
         for data, c in zip(datas, ctrl, strict=True):
             data.ctrl[:] = c
             mujoco.mj_step(model, data, nstep=nstep)
-    return rounds * len(datas) / (time.perf_counter() - t0)
+    return rounds * len(datas) / (clock() - t0)
 
 
 def env_rate(env: BatchedEnv, steps: int) -> float:
@@ -69,16 +86,16 @@ def env_rate(env: BatchedEnv, steps: int) -> float:
     rng = np.random.default_rng(0)
     rounds = max(1, steps // env.num_envs)
     actions = rng.uniform(space.low, space.high, size=(rounds, env.num_envs, space.shape[0]))
-    t0 = time.perf_counter()
+    t0 = clock()
     for a in actions:
         env.step(a)
-    return rounds * env.num_envs / (time.perf_counter() - t0)
+    return rounds * env.num_envs / (clock() - t0)
 
 
 def ppo_rate(env: BatchedEnv, config: PPOConfig) -> float:
-    t0 = time.perf_counter()
+    t0 = clock()
     train_ppo(env, config, progress=False)
-    return config.num_updates * config.batch_size / (time.perf_counter() - t0)
+    return config.num_updates * config.batch_size / (clock() - t0)
 
 
 def source_bank(pair: str) -> SourceBank:
@@ -109,8 +126,14 @@ def shaping_for(pair: str, target: BatchedEnv, bank: SourceBank) -> LatentShapin
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=16384, help="env steps per measurement")
+    parser.add_argument("--repeats", type=int, default=3, help="PPO runs of each kind")
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="cpu", help="see CLOCKS")
     parser.add_argument("--pairs", nargs="+", default=sorted(PRESETS), metavar="PAIR")
     args = parser.parse_args()
+    if args.repeats < 1 or args.steps < 1:
+        parser.error("--steps and --repeats must be >= 1")
+    global clock
+    clock = CLOCKS[args.clock]
     torch.set_num_threads(1)
     print(f"{'pair':14s} {'raw':>9s} {'env':>9s} {'ppo':>8s} {'shaped':>8s}  shaped/ppo  ppo/raw")
     for pair in args.pairs:
@@ -122,10 +145,15 @@ def main() -> None:
         bank = source_bank(pair)
         raw = raw_mujoco_rate(make_batched(target_id, config.num_envs), args.steps)
         alone = env_rate(make_batched(target_id, config.num_envs), args.steps)
-        plain = ppo_rate(make_batched(target_id, config.num_envs), config)
-        inner = make_batched(target_id, config.num_envs)
-        shaped_env = ShapedBatchedEnv(inner, shaping_for(pair, inner, bank), preset.bank_match_keys)
-        shaped = ppo_rate(shaped_env, config)
+        plains, shapeds = [], []
+        for _ in range(args.repeats):
+            plains.append(ppo_rate(make_batched(target_id, config.num_envs), config))
+            inner = make_batched(target_id, config.num_envs)
+            shaped_env = ShapedBatchedEnv(
+                inner, shaping_for(pair, inner, bank), preset.bank_match_keys
+            )
+            shapeds.append(ppo_rate(shaped_env, config))
+        plain, shaped = statistics.median(plains), statistics.median(shapeds)
         print(
             f"{pair:14s} {raw:9.0f} {alone:9.0f} {plain:8.0f} {shaped:8.0f}  "
             f"{shaped / plain:10.2f}  {plain / raw:7.2f}"

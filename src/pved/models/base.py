@@ -24,6 +24,7 @@ from torch import nn
 
 from pved.checks import check_int, check_number, check_seed
 from pved.errors import PvedError
+from pved.models.distributions import kl_diag_gaussians
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -262,6 +263,25 @@ class SharedSpaceModel(nn.Module, abc.ABC):
         """Non-negative distance (B,) between the shared representations of time-matched
         source and target rows; the shaping reward is ``−β · shaping`` (Eq. 10). Call under
         ``torch.no_grad()`` in RL."""
+
+    def shaping_between(self, source: SharedRep, target: SharedRep) -> torch.Tensor:
+        """Eq. 10's distance from the two shared representations, each (B, K) -> (B,):
+        the closed-form KL(q_S ‖ q_T) between diagonal Gaussians (source first, as in
+        Eq. 10), or ‖source − target‖ between points (the deterministic models).
+
+        Every model's :meth:`shaping` equals ``shaping_between(shared_source(x_S),
+        shared_target(x_T))`` bit for bit (a test checks each registered model), so the
+        transfer stage can encode the source bank once per run and give only the target
+        half per step (``pved.transfer.source_cache``). A model whose distance is not of
+        this form overrides it."""
+        if source.mean.shape[0] != target.mean.shape[0]:
+            raise PvedError(
+                f"source and target batches differ in size: "
+                f"{source.mean.shape[0]} vs {target.mean.shape[0]}"
+            )
+        if source.logvar is None or target.logvar is None:
+            return torch.linalg.vector_norm(source.mean - target.mean, dim=-1)
+        return kl_diag_gaussians(source.mean, source.logvar, target.mean, target.logvar)
 
     def individual_source(self, x_S: torch.Tensor) -> SharedRep | None:
         """The source's individual representation (B, K_y), or None for models without one."""

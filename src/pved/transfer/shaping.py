@@ -36,6 +36,7 @@ from pved.envs.base import BatchedEnv, Info
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.transfer.source_bank import SourceBank
+from pved.transfer.source_cache import EncodedBank, encode_bank, encode_batch_rows
 
 # How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
 # −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping");
@@ -137,6 +138,8 @@ class LatentShaping:
         self.gamma = check_number("gamma", gamma, low=0.0, high=1.0, low_open=True)
         # rows shaped so far: the clock ``start`` is read against (saved with the env)
         self.steps = 0
+        # q_φS of every bank row, encoded at the first shaped step (source_cache.py)
+        self._encoded: EncodedBank | None = None
         if bank.dim != model.source_dim:
             raise PvedError(
                 f"source bank rows have dim {bank.dim}, "
@@ -159,11 +162,15 @@ class LatentShaping:
                 f"target state-action has dim {x_t.shape[1]}, the model's target input is "
                 f"{self.model.target_dim}"
             )
-        x_s = self.bank.lookup(episode, t, self.time_scale)
+        # the source half is the bank's, encoded once per run in batches sized after
+        # this call's, which keeps the per-step encode's bits (source_cache.py)
+        if self._encoded is None or self._encoded.bank is not self.bank:
+            rows = encode_batch_rows(len(obs))
+            self._encoded = encode_bank(self.model, self.bank, rows)
+        q_s = self._encoded.lookup(episode, t, self.time_scale)
         with torch.no_grad():
-            distance = self.model.shaping(
-                torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
-            )
+            q_t = self.model.shared_target(torch.as_tensor(x_t, dtype=torch.float32))
+            distance = self.model.shaping_between(q_s, q_t)
         d = distance.double().numpy()
         if self.form == "log1p":
             d = np.log1p(d)
