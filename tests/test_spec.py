@@ -151,7 +151,8 @@ def test_a_policy_of_the_wrong_dims_is_refused(
         f'[source.target]\nenv = "InvertedPendulum-v5"\npolicy = "{reacher}"',
     )
     refused(capsys, "pair", "check", spec, match="source.target.policy")
-    refused(capsys, "build-bank", "--pair", spec, "--runs", tmp_path, match="do not match: the policy observes 15 dims, the env 4")
+    refused(capsys, "build-bank", "--pair", spec, "--runs", tmp_path,
+            match="the policy observes 15 dims, the env 4")  # fmt: skip
     refused(capsys, "pair", "check", "no-such.toml", match="spec not found")
     refused(capsys, "transfer", "--pair", spec, "--model", "oracle", "--runs", tmp_path,
             match="no such variant")  # fmt: skip
