@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -73,3 +74,28 @@ def assert_ppo_resumes_exactly(
     # the updates logged after the checkpoint by the interrupted run are not duplicated
     logged = [r["step"] for r in run_b.read_metrics() if "loss/approx_kl" in r]
     assert logged == [k * per_update for k in range(1, 6)]
+
+
+def push_bank_and_model(episodes: int = 8) -> tuple[Any, Any]:
+    """A source bank of the shipped Reacher3 Push policy (``episodes`` episodes, seed 5)
+    and an untrained PVED for the Reacher3 → Reacher4 Push pair, its standardisation fit
+    on rough data so the encoders see unit-scale inputs: the shaping tests' inputs."""
+    from pved.envs import make_batched
+    from pved.models import PVED, ModelDims, PVEDConfig
+    from pved.pretrained import pretrained_policy_path
+    from pved.rl.policy import load_policy
+    from pved.transfer.source_bank import build_source_bank
+
+    env = make_batched("pved/Reacher3Push-v0", 4)
+    policy = load_policy(pretrained_policy_path("Reacher3", "Push"))
+    bank = build_source_bank(env, policy, episodes, ("button_start",), seed=5)
+    target = make_batched("pved/Reacher4Push-v0", 1)
+    n_tgt = len(target.robot_state_indices)
+    n_src = len(bank.header["robot_state_indices"])
+    dims = ModelDims(bank.dim, n_tgt + target.single_action_space.shape[0], n_src, n_tgt)
+    torch.manual_seed(0)
+    model = PVED(dims, PVEDConfig())
+    model.fit_standardization(
+        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
+    )
+    return bank, model

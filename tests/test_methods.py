@@ -7,22 +7,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 import pved  # noqa: F401  (registers the env ids)
-from helpers import assert_ppo_resumes_exactly
+from helpers import assert_ppo_resumes_exactly, push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan
 from pved.experiments.stages import transfer_spec
-from pved.models import PVED, ModelDims, PVEDConfig
-from pved.pretrained import pretrained_policy_path
-from pved.rl.policy import load_policy
+from pved.models import PVED
 from pved.rl.ppo import PPOConfig
 from pved.runs import config_hash
 from pved.transfer.methods import METHODS, get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
-from pved.transfer.source_bank import SourceBank, build_source_bank
+from pved.transfer.source_bank import SourceBank
 
 TARGET_PUSH = "pved/Reacher4Push-v0"
 SOURCE_PUSH = "pved/Reacher3Push-v0"
@@ -31,24 +28,18 @@ GAMMA = 0.9  # far from 1, so a missing 1/γ shows
 
 
 @pytest.fixture(scope="module")
-def bank() -> SourceBank:
-    env = make_batched(SOURCE_PUSH, 4)
-    policy = load_policy(pretrained_policy_path("Reacher3", "Push"))
-    return build_source_bank(env, policy, 6, MATCH_KEYS, seed=5)
+def inputs() -> tuple[SourceBank, PVED]:
+    return push_bank_and_model(episodes=6)
 
 
 @pytest.fixture(scope="module")
-def model(bank: SourceBank) -> PVED:
-    target = make_batched(TARGET_PUSH, 1)
-    n_tgt = len(target.robot_state_indices)
-    n_src = len(bank.header["robot_state_indices"])
-    dims = ModelDims(bank.dim, n_tgt + target.single_action_space.shape[0], n_src, n_tgt)
-    torch.manual_seed(0)
-    model = PVED(dims, PVEDConfig())
-    model.fit_standardization(
-        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
-    )
-    return model
+def bank(inputs: tuple[SourceBank, PVED]) -> SourceBank:
+    return inputs[0]
+
+
+@pytest.fixture(scope="module")
+def model(inputs: tuple[SourceBank, PVED]) -> PVED:
+    return inputs[1]
 
 
 def _shaped(model: PVED, bank: SourceBank, form: str, n: int = 3) -> ShapedBatchedEnv:

@@ -258,3 +258,27 @@ def test_files_made_under_another_spec_or_pair_are_refused(
     # this pair's files for a built-in pair
     refused(capsys, "transfer", "--pair", "reacher", "--model-path", model, "--bank", bank,
             "--runs", tmp_path, match="another pair")  # fmt: skip
+
+
+def _pair_name_in_a_fresh_process(name: str) -> str:
+    from pved.spec import load_pair
+
+    return load_pair(name).name
+
+
+def test_a_spec_loaded_here_is_found_by_name_in_spawned_workers() -> None:
+    # a protocol's workers are fresh interpreters (spawned, or Ray's): they look the pair
+    # up by name, and find the spec file this process read through the environment
+    import concurrent.futures
+    import multiprocessing
+
+    from pved.spec import load_pair
+
+    spec = Path(__file__).resolve().parents[1] / "examples/pairs/pendulums.toml"
+    name = load_pair(spec).name
+    with concurrent.futures.ProcessPoolExecutor(
+        1, mp_context=multiprocessing.get_context("spawn")
+    ) as pool:
+        assert pool.submit(_pair_name_in_a_fresh_process, name).result() == name
+        with pytest.raises(PvedError, match="unknown pair 'no-such-pair'"):
+            pool.submit(_pair_name_in_a_fresh_process, "no-such-pair").result()

@@ -12,21 +12,18 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 import pved  # noqa: F401  (registers the env ids)
-from helpers import assert_ppo_resumes_exactly
+from helpers import assert_ppo_resumes_exactly, push_bank_and_model
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
 from pved.experiments.transfer_spec import transfer_spec
 from pved.models import PVED, ModelDims, PVEDConfig
-from pved.pretrained import pretrained_policy_path
-from pved.rl.policy import load_policy
 from pved.rl.ppo import PPOConfig
 from pved.runs import config_hash
 from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
 from pved.transfer.source_bank import (
     SourceBank,
     bank_time_scale,
-    build_source_bank,
     load_bank,
     save_bank,
     source_steps,
@@ -62,24 +59,19 @@ def _mean_action(obs: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def bank() -> SourceBank:
-    env = make_batched(SOURCE_PUSH, 4)
-    policy = load_policy(pretrained_policy_path("Reacher3", "Push"))
-    return build_source_bank(env, policy, 8, MATCH_KEYS, seed=5)
+def inputs() -> tuple[SourceBank, PVED]:
+    return push_bank_and_model(episodes=8)
 
 
 @pytest.fixture(scope="module")
-def shaping(bank: SourceBank) -> LatentShaping:
+def bank(inputs: tuple[SourceBank, PVED]) -> SourceBank:
+    return inputs[0]
+
+
+@pytest.fixture(scope="module")
+def shaping(inputs: tuple[SourceBank, PVED]) -> LatentShaping:
+    bank, model = inputs
     target = make_batched(TARGET_PUSH, 1)
-    n_tgt = len(target.robot_state_indices)
-    n_src = len(bank.header["robot_state_indices"])
-    dims = ModelDims(bank.dim, n_tgt + target.single_action_space.shape[0], n_src, n_tgt)
-    torch.manual_seed(0)
-    model = PVED(dims, PVEDConfig())
-    # standardisation from rough data so the untrained encoders see unit-scale inputs
-    model.fit_standardization(
-        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
-    )
     return LatentShaping(model, bank, beta=0.1, robot_state_indices=target.robot_state_indices)
 
 

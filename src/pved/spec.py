@@ -8,7 +8,9 @@ built-in pairs are specs shipped in ``pved/pairs/``; :func:`load_pair` reads a b
 name or a file, :func:`dump_pair` writes the file back (``pved pair show``).
 
 A spec loaded from a file is remembered under its name for the rest of the process, so
-that every stage that looks a pair up by name (``get_preset``) finds it.
+that every stage that looks a pair up by name (``get_preset``) finds it, and in the
+environment variable ``PVED_SPEC_FILES``, so that the processes the process starts (a
+protocol's workers, spawned or Ray's) find it too.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import re
 import tomllib
 from collections.abc import Mapping
@@ -36,6 +39,26 @@ TASK_ROLES = ("training", "target")
 
 # specs loaded from files in this process, by name
 _LOADED: dict[str, PairPreset] = {}
+#: The spec files loaded in this process and its parents, in order (``os.pathsep``-joined
+#: absolute paths): child processes inherit the environment, and read them on a miss.
+SPEC_FILES_ENV = "PVED_SPEC_FILES"
+
+
+def _remember(path: Path) -> None:
+    files = [f for f in os.environ.get(SPEC_FILES_ENV, "").split(os.pathsep) if f]
+    here = str(path.resolve())
+    os.environ[SPEC_FILES_ENV] = os.pathsep.join([*(f for f in files if f != here), here])
+
+
+def _inherited(name: str) -> PairPreset | None:
+    """The spec named ``name`` among the files a parent process loaded (the last such)."""
+    found = None
+    for f in os.environ.get(SPEC_FILES_ENV, "").split(os.pathsep):
+        if f and Path(f).is_file():
+            preset = read_spec(Path(f))
+            if preset.name == name:
+                found = preset
+    return found
 
 
 def builtin_names() -> list[str]:
@@ -68,6 +91,10 @@ def load_pair(pair: str | Path) -> PairPreset:
             return _builtin(text)
         if text in _LOADED:
             return _LOADED[text]
+        inherited = _inherited(text)
+        if inherited is not None:
+            _LOADED[text] = inherited
+            return inherited
         raise PvedError(
             f"unknown pair {text!r}; known pairs: {', '.join(builtin_names() + sorted(_LOADED))}"
             ", or a spec file (.toml)"
@@ -82,6 +109,7 @@ def load_pair(pair: str | Path) -> PairPreset:
     # the file read last stands for its name (an edited spec read again replaces the
     # earlier one; what was made under that one is refused by its spec digest)
     _LOADED[preset.name] = preset
+    _remember(Path(text))
     return preset
 
 
