@@ -29,9 +29,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from pved.blas import loaded_kernel, loaded_mkl_branch, unpin_mkl_branch  # noqa: E402
-from pved.config import get_preset  # noqa: E402
 from pved.models import evaluate_model, train_model  # noqa: E402
 from pved.runs import Run  # noqa: E402
+from pved.spec import get_preset  # noqa: E402
 
 # pved pins MKL's COMPATIBLE branch on import (pved.blas); the torch peer runs on the machine's
 # own branch, as it would without pved (unless the caller set MKL_CBWR)

@@ -41,7 +41,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from pved.config import PRESETS, get_preset  # noqa: E402
+from pved.spec import PRESETS, get_preset  # noqa: E402
 from pved.envs import env_id, make_batched  # noqa: E402
 from pved.envs.base import BatchedEnv  # noqa: E402
 from pved.models import ModelDims, build_model  # noqa: E402

@@ -37,13 +37,13 @@ from typing import Any  # noqa: E402
 
 import torch  # noqa: E402
 
-from pved.config import preset_for_agent  # noqa: E402
 from pved.envs import make_batched  # noqa: E402
 from pved.envs.locomotion import default_config  # noqa: E402
 from pved.envs.registry import env_id  # noqa: E402
 from pved.errors import PvedError  # noqa: E402
 from pved.rl.ppo import PPOConfig, train_ppo  # noqa: E402
 from pved.runs import Run  # noqa: E402
+from pved.spec import preset_for_agent  # noqa: E402
 
 
 def parse_override(text: str, defaults: PPOConfig) -> tuple[str, object]:

@@ -30,11 +30,11 @@ from pathlib import Path  # noqa: E402
 import torch  # noqa: E402
 
 from pved import __version__  # noqa: E402
-from pved.config import preset_for_agent  # noqa: E402
 from pved.envs.registry import env_id  # noqa: E402
 from pved.experiments.stages import evaluate, train_policy  # noqa: E402
 from pved.pretrained import PRETRAINED_DIR  # noqa: E402
 from pved.runs import atomic_write_json  # noqa: E402
+from pved.spec import preset_for_agent  # noqa: E402
 
 #: What ``make demo`` needs: both agents on the training task, the source on the target task.
 DEFAULT_POLICIES: tuple[tuple[str, str, int], ...] = (

@@ -40,13 +40,13 @@ from pved.analysis.tsne import (
     x_split_by_group,
 )
 from pved.analysis.video import render_rollout
-from pved.config import PRESETS
 from pved.envs import make_batched
 from pved.envs.terrain import CURVE_RAMP_LENGTH
 from pved.errors import PvedError
 from pved.models import PVED, ModelDims, PVEDConfig
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import Policy, load_policy
+from pved.spec import PRESETS
 
 # The shipped policies give a source on Push and, standing in for a transferred target
 # (none is shipped), the Reacher4 Reach policy on its own env: the mechanics are the same.

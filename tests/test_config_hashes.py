@@ -15,9 +15,9 @@ from typing import Any
 import pytest
 
 import pved.experiments.stages as stages
-from pved.config import PRESETS, get_preset
 from pved.rl.ppo import PPOConfig
 from pved.runs import Run, config_hash
+from pved.spec import PRESETS, get_preset
 
 
 def _spec_hash(tmp_path: Path, pair: str, method: str, **options: Any) -> str:

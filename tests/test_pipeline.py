@@ -122,9 +122,9 @@ def test_help_names_the_values_a_choice_takes(
 ) -> None:
     # the names come from the registries that check them, so --help and the one-line
     # error for a wrong name (test_bad_input_is_one_line_and_nonzero) list the same ones
-    from pved.config import PRESETS
     from pved.envs.registry import AGENTS, TASKS
     from pved.pairing.align import ALIGNMENTS
+    from pved.spec import PRESETS
 
     with pytest.raises(SystemExit) as exit_info:
         main([verb, "--help"])
@@ -373,7 +373,7 @@ def test_every_model_trains_and_shapes_through_the_cli(
 
 
 def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -> None:
-    from pved.config import get_preset
+    from pved.spec import get_preset
 
     code = main(["transfer", "--runs", str(tmp_path), "--model", "ppo", "--steps", "2048",
                  "--eval-episodes", "16", "--final-eval-episodes", "16"])  # fmt: skip
@@ -386,7 +386,8 @@ def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -
 def test_locomotion_curve_points_take_one_batched_pass(pair: str) -> None:
     # Paper IV.A's metric is the final score over 100 episodes; a curve point on 100
     # 1000-step episodes would cost twice the training between points (decisions.md).
-    from pved.config import EVAL_NUM_ENVS, get_preset
+    from pved.config import EVAL_NUM_ENVS
+    from pved.spec import get_preset
 
     transfer = get_preset(pair).transfer
     assert transfer.final_eval_episodes == 100

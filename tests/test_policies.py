@@ -10,9 +10,10 @@ from typing import Any
 
 import pytest
 
-from pved.config import PairPreset, get_preset
+from pved.config import PairPreset
 from pved.experiments import stages
 from pved.rl.policy import load_policy
+from pved.spec import get_preset
 
 
 def _use_small_hopper_preset(

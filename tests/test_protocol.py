@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
-from pved.config import get_budget, get_preset
+from pved.config import get_budget
 from pved.errors import PvedError
 from pved.experiments.protocol import (
     COPYABLE_STAGES,
@@ -31,6 +31,7 @@ from pved.experiments.protocol import (
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
+from pved.spec import get_preset
 
 PVED = [sys.executable, "-m", "pved.cli"]
 

@@ -11,13 +11,13 @@ import pytest
 import torch
 
 import pved  # noqa: F401  (registers the env ids)
-from pved.config import PRESETS, get_preset
 from pved.envs import env_id, make_batched
 from pved.errors import PvedError
 from pved.models import MODELS, ModelDims, build_model
 from pved.models.base import SharedRep, SharedSpaceModel
 from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy
+from pved.spec import PRESETS, get_preset
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank, build_source_bank
 from pved.transfer.source_cache import MIN_BATCH_ROWS, encode_bank, encode_batch_rows

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from helpers import run_cli
-from pved.config import PRESETS, PRETRAINED, get_preset
+from pved.config import PRETRAINED
 from pved.envs.gym_adapter import GymnasiumBatch
 from pved.envs.registry import env_id
 from pved.errors import PvedError
 from pved.experiments import stages
 from pved.runs import Run, config_hash
-from pved.spec import builtin_names, dump_pair, load_pair, read_spec
+from pved.spec import PRESETS, builtin_names, dump_pair, get_preset, load_pair, read_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "pairs"

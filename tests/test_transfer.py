@@ -354,7 +354,7 @@ def test_bank_lookup_follows_the_pairs_time_base() -> None:
 
 def test_humanoid_ant_transfer_reads_its_bank_in_physical_time() -> None:
     # the preset aligns its pairs by time; its agents' envs give the periods
-    from pved.config import get_preset
+    from pved.spec import get_preset
 
     preset = get_preset("humanoid-ant")
     dt_s = make_batched("pved/HumanoidCurve-v0", 1).dt  # type: ignore[attr-defined]

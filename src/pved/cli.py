@@ -45,8 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     # the names a choice takes, from the registries that check them (each checks its own
     # and names the known ones in a one-line error, so argparse's `choices` is not used)
     from pved.commands import Verbs, analysis, protocol, stages
-    from pved.config import PRESETS
     from pved.models import MODELS
+    from pved.spec import PRESETS
     from pved.transfer.methods import METHODS
 
     pairs = " | ".join(sorted(PRESETS))

@@ -320,29 +320,3 @@ def get_budget(name: str) -> ProtocolBudget:
 
 
 EVAL_NUM_ENVS = 16  # env copies an evaluation runs on, at most (one batched pass)
-
-
-def preset_for_agent(agent: str) -> PairPreset:
-    """The first pair (a loaded spec before the built-in ones) in which ``agent`` takes
-    part (for its policies' PPO config)."""
-    from pved.spec import preset_for_agent as find
-
-    return find(agent)
-
-
-def get_preset(pair: str) -> PairPreset:
-    """The pair ``pair``: a built-in name, the name of a spec loaded before, or a spec
-    file (``pved.spec.load_pair``); an unknown one raises :class:`PvedError`."""
-    from pved.spec import load_pair
-
-    return load_pair(pair)
-
-
-def __getattr__(name: str) -> Any:
-    # ``PRESETS``: the built-in pairs, read from their spec files when first asked for
-    # (pved/pairs/*.toml), so that importing the configs reads no file
-    if name == "PRESETS":
-        from pved.spec import builtin_pairs
-
-        return builtin_pairs()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

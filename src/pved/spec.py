@@ -478,3 +478,16 @@ def dump_pair(preset: PairPreset) -> str:
         },
     )
     return "\n".join(lines) + "\n"
+
+
+def get_preset(pair: str | Path) -> PairPreset:
+    """The pair ``pair`` (:func:`load_pair`): the name every stage looks a pair up by."""
+    return load_pair(pair)
+
+
+def __getattr__(name: str) -> Any:
+    # ``PRESETS``: the built-in pairs, read from their spec files when first asked for
+    # (pved/pairs/*.toml), so that importing this module reads no file
+    if name == "PRESETS":
+        return builtin_pairs()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -30,9 +30,9 @@ import numpy as np
 
 from pved.analysis.claims import drop, early_score, eval_curve
 from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
-from pved.config import get_preset
 from pved.errors import PvedError
 from pved.runs import read_json
+from pved.spec import get_preset
 
 REPS = 20000
 """Bootstrap resamples per interval (as ``pved claims``)."""

@@ -26,10 +26,10 @@ from typing import Any
 from pved import __version__
 from pved.analysis.curves import reach_cell
 from pved.checks import check_writable
-from pved.config import get_preset
 from pved.envs.registry import env_id
 from pved.errors import PvedError
 from pved.runs import atomic_write_bytes, read_json
+from pved.spec import get_preset
 
 VIDEO_SUFFIXES = (".gif", ".mp4", ".webm")
 # the rollouts rendered for a protocol's methods: long enough to see the gait or the

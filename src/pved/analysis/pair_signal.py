@@ -23,9 +23,9 @@ from typing import Any
 
 from pved.analysis.pairing_signal import pairing_r2
 from pved.checks import check_int, check_seed
-from pved.config import get_preset
 from pved.experiments.stages import collect_pairs
 from pved.pairing.dataset import load_dataset
+from pved.spec import get_preset
 
 #: How the held-out R² (source → target, less the shuffled floor) is read: at or above
 #: the first "strongly", above the second "weakly", else "not" (a reading, not a test; the

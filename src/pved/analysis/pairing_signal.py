@@ -49,7 +49,6 @@ import torch
 
 from pved.analysis.claims import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
-from pved.config import get_preset
 from pved.errors import PvedError
 from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
@@ -59,6 +58,7 @@ from pved.models.train import train_model
 from pved.pairing.align import PHASE_WINDOW, first_component, gait_phase, phase_indices
 from pved.pairing.dataset import PairedDataset, load_dataset
 from pved.runs import atomic_write_json, run_path
+from pved.spec import get_preset
 from pved.transfer.source_bank import load_bank
 
 HELD_OUT_EVERY = 10  # every tenth episode is held out of the regression's fit

@@ -243,11 +243,11 @@ def audit_pair(
     """``pved audit-shaping``: :func:`audit_transfer_start` on ``pair``'s target task with
     its transfer PPO config, alignment and β grid (default), written to ``out`` (JSON,
     atomically) when given."""
-    from pved.config import get_preset
     from pved.envs import env_id
     from pved.experiments.inputs import check_bank_for, check_model_for
     from pved.models import load_model
     from pved.runs import atomic_write_json
+    from pved.spec import get_preset
     from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank
 
     preset = get_preset(pair)
@@ -305,11 +305,11 @@ def likelihood_reading(
     variance, and reports D on matched and on shuffled training pairs
     (:func:`matched_and_shuffled`) for each, with the shared posteriors' mean std. The
     models are kept under ``runs_root/<pair>/likelihood/<variance>/seed<seed>``."""
-    from pved.config import get_preset
     from pved.models import PVEDConfig
     from pved.models.train import train_model as fit_model
     from pved.pairing.dataset import load_dataset
     from pved.runs import Run, atomic_write_json, run_path
+    from pved.spec import get_preset
 
     preset = get_preset(pair)
     with named_options(epochs="--epochs", seed="--seed"):

@@ -34,11 +34,11 @@ from typing import Any
 from pved.analysis.claims import load_summary
 from pved.analysis.pair_report import build_pair_report
 from pved.analysis.transferred import analyze_subspaces, bound
-from pved.config import get_preset
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan, _finished_results, indexed_policy
 from pved.experiments.runner import Job
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
+from pved.spec import get_preset
 
 _RUN_KEY = re.compile(
     r"^(?P<pair>[^/]+)/transfer/pved-beta[^/]*-init(?P<init>\d+)-src(?P<src>\d+)/seed\d+$"

@@ -24,7 +24,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
         print(build_pair_report(args.pair, args.inputs, args.out, videos=not args.no_videos))
         return
     from pved.analysis.report import transfer_report
-    from pved.config import get_preset
+    from pved.spec import get_preset
 
     if args.seeds is None or args.out is None:
         raise PvedError(

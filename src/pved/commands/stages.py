@@ -13,9 +13,9 @@ from pved.commands import Verbs, print_json
 
 
 def _cmd_list(args: argparse.Namespace) -> None:
-    from pved.config import PRESETS
     from pved.envs.registry import registered_env_ids
     from pved.models import MODELS
+    from pved.spec import PRESETS
     from pved.transfer.methods import METHODS
 
     print("pairs:  " + ", ".join(sorted(PRESETS)))

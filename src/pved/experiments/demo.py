@@ -20,10 +20,11 @@ from tqdm import tqdm
 from pved.analysis.compare import compare_runs, format_comparison
 from pved.analysis.report import transfer_report
 from pved.checks import check_int, check_seed, check_writable
-from pved.config import EVALUATION_SEEDS, get_preset
+from pved.config import EVALUATION_SEEDS
 from pved.errors import OptionError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
 from pved.runs import atomic_write_bytes, atomic_write_json, last_logged_step, run_path
+from pved.spec import get_preset
 
 
 @dataclass(frozen=True)

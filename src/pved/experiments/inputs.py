@@ -13,12 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from pved.config import PRETRAINED, TRAINED, PairPreset, get_preset
+from pved.config import PRETRAINED, TRAINED, PairPreset
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.pretrained import pretrained_policy_path
 from pved.runs import run_file, run_path
-from pved.spec import builtin_names, spec_identity
+from pved.spec import builtin_names, get_preset, spec_identity
 from pved.transfer.source_bank import SourceBank
 
 DEFAULT_RUNS = Path("runs")

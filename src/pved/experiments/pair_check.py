@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from pved.config import PRETRAINED, TRAINED, PairPreset, get_preset
+from pved.config import PRETRAINED, TRAINED, PairPreset
 from pved.envs import BatchedEnv, make_batched
 from pved.errors import PvedError
 from pved.experiments.inputs import DEFAULT_RUNS, env_of, policy_path
 from pved.rl.external import load_policy_file
+from pved.spec import get_preset
 
 #: ``evaluate_policy``'s results a metric can name besides ``<info key>_mean``.
 METRICS = ("return_mean", "length_mean", "completion_rate", "success_rate")

@@ -45,7 +45,7 @@ import numpy as np
 
 from pved import __version__
 from pved.checks import check_int, check_writable
-from pved.config import ProtocolBudget, get_budget, get_preset, preset_for_agent
+from pved.config import ProtocolBudget, get_budget
 from pved.errors import PvedError
 from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.experiments.runner import (
@@ -61,6 +61,7 @@ from pved.experiments.transfer_spec import eq10_config
 from pved.models.train import shared_subspace_collapsed
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
+from pved.spec import get_preset, preset_for_agent
 from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method
 
 if TYPE_CHECKING:

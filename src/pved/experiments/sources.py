@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from pved.checks import check_int, check_seed
-from pved.config import EVAL_NUM_ENVS, get_preset
+from pved.config import EVAL_NUM_ENVS
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.envs.registry import env_id
@@ -29,6 +29,7 @@ from pved.pairing.minari_io import (
 )
 from pved.pretrained import pretrained_policy_path
 from pved.rl.external import load_policy_file
+from pved.spec import get_preset
 
 
 def check_one_source(source_policy: object, source_dataset: object) -> None:

@@ -25,7 +25,7 @@ import torch
 
 from pved import __version__
 from pved.checks import check_int, check_seed, check_writable, given, named_options
-from pved.config import EVAL_NUM_ENVS, PairPreset, get_preset, preset_for_agent
+from pved.config import EVAL_NUM_ENVS, PairPreset
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
@@ -64,7 +64,7 @@ from pved.rl.external import load_policy_file
 from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
-from pved.spec import spec_identity
+from pved.spec import get_preset, preset_for_agent, spec_identity
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (

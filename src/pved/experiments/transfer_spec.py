@@ -13,12 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from pved.checks import check_int, given, named_options
-from pved.config import get_preset
 from pved.errors import PvedError
 from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
-from pved.spec import spec_identity
+from pved.spec import get_preset, spec_identity
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import check_shaping_action, check_shaping_form
 
