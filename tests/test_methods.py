@@ -160,3 +160,20 @@ def test_protocol_trains_one_model_for_the_methods_that_share_it(tmp_path: Path)
     assert plan.describe()["beta_grids"]["reacher"]["pved-potential"] == [1.0, 0.1]
     with pytest.raises(PvedError, match="unknown method 'pved-typo'"):
         ProtocolPlan(["reacher"], ["pved-typo"], "smoke", tmp_path)
+
+
+def test_the_summary_reads_d_off_the_term_only_for_eq10s_form() -> None:
+    from pved.experiments.protocol import _scale_cells
+
+    m = {
+        "beta": 0.1,
+        "reward_scale": {
+            "shaping_first": -2.0,
+            "shaping_last": -1.0,
+            "env_reward_first": 0.5,
+            "env_reward_last": 0.7,
+        },
+    }
+    assert _scale_cells(m, "pved")[0] == "-2 → -1 (D 20 → 10)"
+    # a potential's payment is a difference of potentials, not −β·D
+    assert _scale_cells(m, "pved-potential")[0] == "-2 → -1"

@@ -896,17 +896,18 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
     return f"{_fmt(value)} [{_fmt(ci[0])}, {_fmt(ci[1])}]"
 
 
-def _scale_cells(method_summary: Mapping[str, Any]) -> tuple[str, str]:
+def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, str]:
     """The summary table's two reward-scale cells of one method (``–`` without a shaping
     term): the Eq. 10 term with its distance D (a KL in nats, or a point-code model's
-    squared distance) and the env's reward, each at the first and last rollout."""
+    squared distance; only for the ``eq10`` form, where D = term / −β) and the env's
+    reward, each at the first and last rollout."""
     scale = method_summary.get("reward_scale")
     if not scale:
         return "–", "–"
     first, last = scale["shaping_first"], scale["shaping_last"]
     shaping = f"{first:.3g} → {last:.3g}"
     beta = method_summary.get("beta")
-    if isinstance(beta, int | float) and beta > 0:
+    if isinstance(beta, int | float) and beta > 0 and get_method(method).shaping_form == "eq10":
         shaping += f" (D {-first / beta:,.4g} → {-last / beta:,.4g})"
     env = f"{scale['env_reward_first']:.3g} → {scale['env_reward_last']:.3g}"
     return shaping, env
@@ -934,7 +935,8 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             "",
             "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final "
             "| steps to the oracle's final | beta | init | shaping term per step, first → "
-            "last rollout (D = term / −β) | env reward per step, first → last rollout |",
+            "last rollout (Eq. 10's form: D = term / −β) | env reward per step, first → last "
+            "rollout |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for method, m in info["methods"].items():
@@ -949,7 +951,7 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             init = m.get("init", "–")
             if m.get("shared_collapsed"):  # its shaping reward is zero: plain PPO in effect
                 init = f"{init} (collapsed)"
-            shaping, env_reward = _scale_cells(m)
+            shaping, env_reward = _scale_cells(m, method)
             lines.append(
                 f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
                 f"{reach[0]} | {reach[1]} | {beta} | {init} | {shaping} | {env_reward} |"
