@@ -1050,6 +1050,17 @@ def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
         (["--pair", "reacher", "--methods", "pved", "magic"], "unknown method"),
         (["--pair", "reacher", "--budget", "huge"], "unknown budget"),
         (["--pair", "reacher", "--stages-from", "nowhere"], "not a protocol directory"),
+        # each of several sources is checked before anything is copied or written
+        (
+            [
+                "--pair",
+                "reacher",
+                "--stages-from",
+                str(Path(__file__).resolve().parents[1] / "docs/protocol/reacher-quick"),
+                "nowhere",
+            ],
+            "--stages-from nowhere is not a protocol directory",
+        ),
     ],
 )
 def test_protocol_bad_input_is_one_line(tmp_path: Path, args: list[str], message: str) -> None:

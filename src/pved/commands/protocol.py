@@ -64,8 +64,11 @@ def add_protocol(v: Verbs) -> None:
     p.add_argument(
         "--stages-from",
         type=Path,
-        help="another protocol directory (e.g. the pair's quick one) whose finished "
-        "policies, pairs, models and banks are copied in first; one whose config differs "
+        nargs="+",
+        metavar="DIR",
+        help="other protocol directories (e.g. the pair's quick one) whose finished "
+        "policies, pairs, models and banks (and transfer runs, where the steps per run are "
+        "this plan's) are copied in first, in the order given; one whose config differs "
         "from this plan's is redone",
     )
     p.set_defaults(func=_cmd_protocol)

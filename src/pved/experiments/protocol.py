@@ -648,24 +648,31 @@ def run_protocol(
     retries: int = 2,
     live: bool = True,
     backend: str = "auto",
-    stages_from: Path | str | None = None,
+    stages_from: Path | str | Sequence[Path | str] | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
 
     A directory that already holds a protocol must hold the same one (pairs, methods,
     budget): its finished runs are reused and unfinished ones resumed. ``backend``: see
-    :func:`pved.experiments.runner.run_jobs`. ``stages_from``: a protocol directory
-    whose finished policies, pairs, models and banks are copied in first
-    (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
-    ``paper`` one."""
+    :func:`pved.experiments.runner.run_jobs`. ``stages_from``: protocol directories (one,
+    or several in order) whose finished policies, pairs, models and banks are copied in
+    first (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
+    ``paper`` one; a run already copied from an earlier one is kept."""
+    sources: list[Path | str] = (
+        []
+        if stages_from is None
+        else [stages_from]
+        if isinstance(stages_from, str | Path)
+        else list(stages_from)
+    )
     plan = ProtocolPlan(pairs, methods, budget, Path(out))
     resolve_backend(backend, address)  # before anything is written
     if workers is not None:
         check_int("--workers", workers, low=1)
     check_int("--retries", retries, low=0)
     check_writable("--out", plan.out)
-    if stages_from is not None:
-        _stages_source(stages_from, plan.out)
+    for source in sources:
+        _stages_source(source, plan.out)
     if address:
         check_reachable(address)
     plan_path = plan.out / PLAN_FILE
@@ -698,9 +705,9 @@ def run_protocol(
     else:
         plan.out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(plan_path, {**description, "pved_version": __version__})
-    if stages_from is not None:
-        copied = copy_stage_runs(stages_from, plan.out, plan.pairs)
-        print(f"copied {copied} finished runs from {stages_from}", file=sys.stderr)
+    for source in sources:
+        copied = copy_stage_runs(source, plan.out, plan.pairs)
+        print(f"copied {copied} finished runs from {source}", file=sys.stderr)
     report = run_jobs(
         plan,
         workers=workers,
