@@ -19,7 +19,7 @@ from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
 from pved.spec import get_preset, spec_identity
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import check_shaping_action, check_shaping_form
+from pved.transfer.shaping import ALIGN_ANNEAL, check_shaping_action, check_shaping_form
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,6 +167,8 @@ def transfer_spec(
             config["shaping_start"] = shaping_start
         if shaping_form != "eq10":
             config["shaping_form"] = shaping_form
+        if shaping_form == "align":
+            config["align_anneal"] = ALIGN_ANNEAL
     if shaping_start and shaping_inputs is None:
         raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
     if shaping_form != "eq10" and shaping_inputs is None:

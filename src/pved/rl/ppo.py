@@ -40,6 +40,7 @@ from pved.checks import check_int, check_number, check_seed
 from pved.envs.base import BatchedEnv
 from pved.errors import OptionError, PvedError
 from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
+from pved.rl.guide import GUIDE_CONTEXT, ActionGuide
 from pved.rl.networks import (
     LOG_2PI,
     ActorCritic,
@@ -495,6 +496,11 @@ class _Trainer:
         self.give_mean: Callable[[np.ndarray], None] | None = (
             give_mean if callable(give_mean) else None
         )
+        # an env may offer a loss on the mean action itself (pved.rl.guide; pved-align)
+        guide = getattr(env, "action_guide", None)
+        if guide is not None and not isinstance(guide, ActionGuide):
+            raise PvedError(f"{type(env).__name__}.action_guide is not an ActionGuide")
+        self.guide: ActionGuide | None = guide
 
         T, N, A = config.steps_per_env, config.num_envs, self.act_dim
         self.buf_obs = np.zeros((T, N, self.obs_dim), dtype=np.float32)
@@ -506,6 +512,7 @@ class _Trainer:
         self.buf_term = np.zeros((T, N), dtype=bool)
         self.buf_boot = np.zeros((T, N), dtype=np.float32)
         self.buf_trunc = np.zeros((T, N), dtype=bool)
+        self.buf_ctx = np.zeros((T, N, guide.context_dim if guide else 0), dtype=np.float32)
 
     # -- start / checkpoint ----------------------------------------------------------
     def reset_env(self, seed: int) -> None:
@@ -625,6 +632,8 @@ class _Trainer:
             terminated = np.asarray(terminated, dtype=bool)
             done = terminated | np.asarray(truncated, dtype=bool)
             self.obs = np.asarray(next_obs, dtype=np.float64)
+            if self.guide is not None:  # the context of the step just taken (pre-step state)
+                self.buf_ctx[t] = np.asarray(info[GUIDE_CONTEXT], dtype=np.float32)
             for key, value in info.items():
                 if key.startswith("reward_") or key == "env_reward":
                     term_sums[key] = term_sums.get(key, 0.0) + float(np.sum(value))
@@ -698,6 +707,17 @@ class _Trainer:
         )
 
     # -- update ----------------------------------------------------------------------
+    def _guide(
+        self, ctx: np.ndarray | None, mean: np.ndarray
+    ) -> tuple[float, np.ndarray] | None:
+        """The guide's loss and dL/dmean (B, A) at a minibatch, None without a guide."""
+        if self.guide is None or ctx is None:
+            return None
+        # the rollout just counted has been taken: the share done before this update
+        progress = (self.global_step - self.cfg.batch_size) / max(self.cfg.total_steps, 1)
+        loss, grad = self.guide.loss_grad(ctx, np.asarray(mean, dtype=np.float32), progress)
+        return float(loss), np.asarray(grad, dtype=np.float32).reshape(mean.shape)
+
     def _grad_numpy(
         self,
         obs: np.ndarray,
@@ -706,6 +726,7 @@ class _Trainer:
         adv: np.ndarray,
         ret: np.ndarray,
         val: np.ndarray,
+        ctx: np.ndarray | None = None,
     ) -> dict[str, float]:
         cfg = self.cfg
         mean, a_hidden = mlp_forward_np(obs, self.actor, cfg.activation)
@@ -715,6 +736,11 @@ class _Trainer:
             clip=cfg.clip, clip_value=cfg.clip_value, ent_coef=cfg.ent_coef,
             vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
+        guided = self._guide(ctx, mean)
+        if guided is not None:
+            stats["guide_loss"] = guided[0]
+            stats["loss"] += guided[0]
+            d_mean = d_mean + guided[1]
         mlp_backward_np(obs, a_hidden, d_mean, self.actor, self.actor_g, cfg.activation)
         mlp_backward_np(obs, c_hidden, d_value[:, None], self.critic, self.critic_g, cfg.activation)
         self.log_std_g[...] = d_log_std
@@ -728,6 +754,7 @@ class _Trainer:
         adv: np.ndarray,
         ret: np.ndarray,
         val: np.ndarray,
+        ctx: np.ndarray | None = None,
     ) -> dict[str, float]:
         cfg = self.cfg
         t = torch.from_numpy
@@ -737,10 +764,16 @@ class _Trainer:
             clip=cfg.clip, clip_value=cfg.clip_value, ent_coef=cfg.ent_coef,
             vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
+        out = {"loss": float(loss.detach()), **{k: float(v) for k, v in st.items()}}
+        guided = self._guide(ctx, mean.detach().numpy())
+        if guided is not None:  # mean · (dL/dmean), dL/dmean held fixed: the guide's gradient
+            loss = loss + (mean * torch.from_numpy(guided[1])).sum()
+            out["guide_loss"] = guided[0]
+            out["loss"] += guided[0]
         self.net.zero_grad(set_to_none=True)
         loss.backward()
         self.flat.grads_from_torch()
-        return {"loss": float(loss.detach()), **{k: float(v) for k, v in st.items()}}
+        return out
 
     def learn(self, advantages: np.ndarray, returns: np.ndarray) -> dict[str, float]:
         """``epochs`` passes of shuffled minibatch steps over the rollout."""
@@ -754,6 +787,7 @@ class _Trainer:
             advantages.reshape(n).astype(np.float32),
             returns.reshape(n).astype(np.float32),
             self.buf_val.reshape(n),
+            self.buf_ctx.reshape(n, self.buf_ctx.shape[-1]),
         )
         grad_fn = self._grad_numpy if cfg.backend == "numpy" else self._grad_torch
         sums: dict[str, float] = {}

@@ -84,6 +84,21 @@ METHODS: dict[str, Method] = {
         # higher (set before any run of the method; the protocol extends it at an edge)
         beta_grid=(1.0, 0.1, 0.01),
     ),
+    # Beyond the paper (docs/decisions/transfer.md, "pved-align"): with the mean action
+    # encoded, Eq. 10's term cannot steer the mean action through PPO's gradient; this
+    # method pays no term and instead adds β·log(1 + D) to PPO's loss, differentiated
+    # through the target encoder with respect to the mean action, annealed to 0 by half
+    # the run (pved.transfer.shaping.AlignGuide).
+    "pved-align": Method(
+        "pved-align",
+        "pved",
+        shaping_form="align",
+        paper=False,
+        summary="beyond the paper: PVED's distance as a loss on the mean action, annealed",
+        # against PPO's loss on normalised advantages (order 0.01-0.1, its gradient order
+        # 1): a weight of 1 lets the guide lead, 0.01 makes it a nudge (set before any run)
+        beta_grid=(1.0, 0.1, 0.01),
+    ),
     NO_TRANSFER: Method(NO_TRANSFER, None, summary="PPO on the target task's reward alone"),
     ORACLE: Method(
         ORACLE, None, train_reward="full", summary="PPO on the source's full reward, no shaping"

@@ -34,15 +34,23 @@ import torch
 from pved.checks import check_number
 from pved.envs.base import BatchedEnv, Info
 from pved.errors import PvedError
-from pved.models.base import SharedSpaceModel
+from pved.models.base import SharedRep, SharedSpaceModel
+from pved.rl.guide import GUIDE_CONTEXT
 from pved.transfer.source_bank import SourceBank
 from pved.transfer.source_cache import EncodedBank, encode_bank, encode_batch_rows
 
 # How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
 # −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping");
 # "potential" takes Φ = −β·D as a potential and pays Φ_t − Φ_{t−1}/γ (outside the paper;
-# docs/decisions/transfer.md, "A potential-based Eq. 10").
-SHAPING_FORMS = ("eq10", "log1p", "potential")
+# docs/decisions/transfer.md, "A potential-based Eq. 10"); "align" adds no reward term
+# but a loss on the policy's mean action, β·log(1 + D), annealed to 0 by half the run
+# (outside the paper; :class:`AlignGuide`).
+SHAPING_FORMS = ("eq10", "log1p", "potential", "align")
+
+#: The share of a run's env steps over which the ``"align"`` form's weight falls from β to
+#: 0 (linearly): the second half of the run is plain PPO, which can undo what a wrong
+#: guide taught (set before any run of the form).
+ALIGN_ANNEAL = 0.5
 
 
 # Which target action Eq. 10 encodes: "mean" is the policy's mean action at s_T (what the
@@ -122,6 +130,8 @@ class LatentShaping:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
         check_shaping_form(form)
+        if form == "align" and start:
+            raise PvedError("the align form has no shaping start (its weight anneals instead)")
         check_shaping_action(action)
         if not (np.isfinite(time_scale) and time_scale > 0):
             raise PvedError(f"the bank's time scale must be a positive number, not {time_scale}")
@@ -164,10 +174,7 @@ class LatentShaping:
             )
         # the source half is the bank's, encoded once per run in batches sized after
         # this call's, which keeps the per-step encode's bits (source_cache.py)
-        if self._encoded is None or self._encoded.bank is not self.bank:
-            rows = encode_batch_rows(len(obs))
-            self._encoded = encode_bank(self.model, self.bank, rows)
-        q_s = self._encoded.lookup(episode, t, self.time_scale)
+        q_s = self.encoded(len(obs)).lookup(episode, t, self.time_scale)
         with torch.no_grad():
             q_t = self.model.shared_target(torch.as_tensor(x_t, dtype=torch.float32))
             distance = self.model.shaping_between(q_s, q_t)
@@ -175,6 +182,14 @@ class LatentShaping:
         if self.form == "log1p":
             d = np.log1p(d)
         return -self.beta * d
+
+    def encoded(self, call_rows: int) -> EncodedBank:
+        """The bank's source posteriors, encoded at the first call in batches sized after
+        ``call_rows``, the rows a step shapes (source_cache.py)."""
+        if self._encoded is None or self._encoded.bank is not self.bank:
+            rows = encode_batch_rows(call_rows)
+            self._encoded = encode_bank(self.model, self.bank, rows)
+        return self._encoded
 
     def term(self, value: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """The reward term (N,) of one step from :meth:`reward`'s ``value`` (N,) at this
@@ -184,6 +199,73 @@ class LatentShaping:
         if self.form != "potential":
             return value
         return value - previous / self.gamma
+
+
+class AlignGuide:
+    """The ``"align"`` form: PVED's distance as a loss on the policy's mean action
+    (:class:`pved.rl.guide.ActionGuide`; a method beyond the paper, ``pved-align``).
+
+    With the mean action encoded, Eq. 10's term is a function of the state and of the
+    policy, not of the sampled action, so PPO's likelihood-ratio gradient cannot move the
+    mean action towards the source's code where the agent is (``pved.rl.guide``). This
+    form pays no reward term; it adds to PPO's loss, at every minibatch row,
+
+        w · log(1 + D(q_φS(c | x_S,t), q_φT(c | s_T,t, clip(μ_θ(s_T,t))))),
+        w = β · max(0, 1 − progress / ALIGN_ANNEAL),
+
+    and passes its gradient with respect to μ_θ through the (frozen) target encoder. The
+    log bounds the gradient where D is thousands of nats (jaco-fetch) and keeps it D's
+    own where D is small; the weight falls to 0 by :data:`ALIGN_ANNEAL` of the run, so
+    the policy the run ends with answers to the task reward alone.
+
+    A context row is the target's robot state at the step, then the source's posterior
+    mean (K) and, for a stochastic model, its log-variance (K).
+    """
+
+    def __init__(
+        self, shaping: LatentShaping, low: np.ndarray, high: np.ndarray, num_envs: int
+    ) -> None:
+        self.shaping = shaping
+        self.low = torch.as_tensor(np.asarray(low, dtype=np.float32))
+        self.high = torch.as_tensor(np.asarray(high, dtype=np.float32))
+        encoded = shaping.encoded(num_envs)
+        self.state_dim = len(shaping.robot_state_indices)
+        self.code_dim = int(encoded.mean.shape[-1])
+        self.stochastic = encoded.logvar is not None
+        self.context_dim = self.state_dim + self.code_dim * (2 if self.stochastic else 1)
+
+    def context(self, obs: np.ndarray, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Context rows (N, context_dim) float32 for target observations (N, obs_dim) at
+        steps ``t`` (N,) of bank episodes ``episode`` (N,)."""
+        sh = self.shaping
+        q_s = sh.encoded(len(obs)).lookup(episode, t, sh.time_scale)
+        parts = [obs[:, sh.robot_state_indices].astype(np.float32), q_s.mean.numpy()]
+        if q_s.logvar is not None:
+            parts.append(q_s.logvar.numpy())
+        return np.concatenate(parts, 1)
+
+    def weight(self, progress: float) -> float:
+        """β · max(0, 1 − progress / ALIGN_ANNEAL)."""
+        return self.shaping.beta * max(0.0, 1.0 - float(progress) / ALIGN_ANNEAL)
+
+    def loss_grad(
+        self, context: np.ndarray, mean: np.ndarray, progress: float
+    ) -> tuple[float, np.ndarray]:
+        """w · mean over rows of log(1 + D) and its gradient (B, A) w.r.t. ``mean``."""
+        w = self.weight(progress)
+        if w == 0.0:
+            return 0.0, np.zeros_like(mean, dtype=np.float32)
+        ctx = torch.as_tensor(np.asarray(context, dtype=np.float32))
+        s, k = self.state_dim, self.code_dim
+        q_s = SharedRep(ctx[:, s : s + k], ctx[:, s + k :] if self.stochastic else None)
+        mu = torch.as_tensor(np.asarray(mean, dtype=np.float32)).requires_grad_(True)
+        # the encoders saw clipped mean actions; outside the box the gradient is 0
+        x_t = torch.cat([ctx[:, :s], torch.clamp(mu, self.low, self.high)], 1)
+        model = self.shaping.model
+        distance = model.shaping_between(q_s, model.shared_target(x_t))
+        loss = w * torch.log1p(distance).mean()
+        (grad,) = torch.autograd.grad(loss, mu)  # the model's own parameters stay untouched
+        return float(loss.detach()), grad.numpy()
 
 
 class ShapedBatchedEnv(BatchedEnv):
@@ -205,6 +287,17 @@ class ShapedBatchedEnv(BatchedEnv):
         self._mean: np.ndarray | None = None
         # each copy's last value of LatentShaping.reward (the potential form's Φ_{t−1})
         self._previous = np.zeros(self.num_envs)
+        self._guide: AlignGuide | None = None
+
+    @property
+    def action_guide(self) -> AlignGuide | None:
+        """The ``"align"`` form's loss on the mean action (PPO reads it; None otherwise)."""
+        if self.shaping.form != "align":
+            return None
+        if self._guide is None:
+            space = self.single_action_space
+            self._guide = AlignGuide(self.shaping, space.low, space.high, self.num_envs)
+        return self._guide
 
     def set_mean_actions(self, mean: np.ndarray) -> None:
         """The policy's mean actions (N, act_dim) at the current observations, which the
@@ -241,11 +334,20 @@ class ShapedBatchedEnv(BatchedEnv):
                 self._mean, self.single_action_space.low, self.single_action_space.high
             )
             self._mean = None  # one step's mean, never reused for the next
-        value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
-        shaping = self.shaping.term(value, self._previous)
-        self._previous = value.copy()  # never the returned term itself
+        guide = self.action_guide
+        context = None
+        if guide is not None:  # no reward term: the context of PPO's loss on the mean
+            self.shaping.steps += self.num_envs
+            shaping = np.zeros(self.num_envs)
+            context = guide.context(self._obs, self._episode, self._t)
+        else:
+            value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
+            shaping = self.shaping.term(value, self._previous)
+            self._previous = value.copy()  # never the returned term itself
         obs, env_reward, terminated, truncated, info = self.env.step(actions)
         info = dict(info)
+        if context is not None:
+            info[GUIDE_CONTEXT] = context
         info["env_reward"] = env_reward
         info["reward_shaping"] = shaping
         done = terminated | truncated
@@ -325,6 +427,11 @@ class LatentShapingWrapper(
             self, shaping=shaping, match_keys=match_keys, mean_action=mean_action
         )
         gym.Wrapper.__init__(self, env)
+        if shaping.form == "align":
+            raise PvedError(
+                "the align form is a loss on the policy's mean action that pved's PPO adds; "
+                "a Gymnasium wrapper can only change the reward (use ShapedBatchedEnv)"
+            )
         if shaping.action == "mean" and mean_action is None:
             raise PvedError(
                 "the shaping encodes the policy's mean action: give mean_action (e.g. "
