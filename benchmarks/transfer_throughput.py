@@ -14,10 +14,11 @@ that comes and goes on a shared machine weighs on both alike. Rates are per seco
 this process's CPU time unless ``--clock wall`` (see ``CLOCKS``).
 
 Prints one line per pair and the ratios ``shaped/ppo`` (the goal: at least 0.85) and
-``ppo/raw``.
+``ppo/raw``. ``--forms`` measures other shaping forms (a method's, ``pved list``) beside
+Eq. 10's, each in the same alternation, with a ratio of its own.
 
     .venv/bin/python benchmarks/transfer_throughput.py [--steps 16384] [--repeats 3]
-        [--clock cpu|wall] [--pairs reacher ...]
+        [--clock cpu|wall] [--pairs reacher ...] [--forms eq10 align ...]
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from pved.models import ModelDims, build_model  # noqa: E402
 from pved.pretrained import pretrained_policy_path  # noqa: E402
 from pved.rl.policy import load_policy  # noqa: E402
 from pved.rl.ppo import PPOConfig, train_ppo  # noqa: E402
-from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv  # noqa: E402
+from pved.transfer.shaping import SHAPING_FORMS, LatentShaping, ShapedBatchedEnv  # noqa: E402
 from pved.transfer.source_bank import (  # noqa: E402
     SourceBank,
     bank_time_scale,
@@ -105,7 +106,9 @@ def source_bank(pair: str) -> SourceBank:
     return build_source_bank(env, policy, BANK_EPISODES, preset.bank_match_keys, seed=0)
 
 
-def shaping_for(pair: str, target: BatchedEnv, bank: SourceBank) -> LatentShaping:
+def shaping_for(
+    pair: str, target: BatchedEnv, bank: SourceBank, form: str = "eq10"
+) -> LatentShaping:
     """Eq. 10 with an untrained PVED of the pair's architecture (see module doc)."""
     preset = get_preset(pair)
     n_t = len(target.robot_state_indices)
@@ -119,7 +122,7 @@ def shaping_for(pair: str, target: BatchedEnv, bank: SourceBank) -> LatentShapin
     )
     scale = bank_time_scale(preset.pairing.align, bank.dt, getattr(target, "dt", None))
     return LatentShaping(
-        model, bank, preset.transfer.beta, target.robot_state_indices, time_scale=scale
+        model, bank, preset.transfer.beta, target.robot_state_indices, time_scale=scale, form=form
     )
 
 
@@ -129,13 +132,21 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="PPO runs of each kind")
     parser.add_argument("--clock", choices=sorted(CLOCKS), default="cpu", help="see CLOCKS")
     parser.add_argument("--pairs", nargs="+", default=sorted(PRESETS), metavar="PAIR")
+    parser.add_argument("--forms", nargs="+", default=["eq10"], choices=SHAPING_FORMS)
     args = parser.parse_args()
     if args.repeats < 1 or args.steps < 1:
         parser.error("--steps and --repeats must be >= 1")
     global clock
     clock = CLOCKS[args.clock]
     torch.set_num_threads(1)
-    print(f"{'pair':14s} {'raw':>9s} {'env':>9s} {'ppo':>8s} {'shaped':>8s}  shaped/ppo  ppo/raw")
+    forms = list(dict.fromkeys(args.forms))
+    print(
+        f"{'pair':14s} {'raw':>9s} {'env':>9s} {'ppo':>8s} "
+        + " ".join(f"{f:>9s}" for f in forms)
+        + "  "
+        + "  ".join(f"{f + '/ppo':>10s}" for f in forms)
+        + "  ppo/raw"
+    )
     for pair in args.pairs:
         preset = get_preset(pair)
         target_id = env_id(preset.target_agent, preset.target_task)
@@ -145,18 +156,24 @@ def main() -> None:
         bank = source_bank(pair)
         raw = raw_mujoco_rate(make_batched(target_id, config.num_envs), args.steps)
         alone = env_rate(make_batched(target_id, config.num_envs), args.steps)
-        plains, shapeds = [], []
+        plains: list[float] = []
+        shapeds: dict[str, list[float]] = {f: [] for f in forms}
         for _ in range(args.repeats):
             plains.append(ppo_rate(make_batched(target_id, config.num_envs), config))
-            inner = make_batched(target_id, config.num_envs)
-            shaped_env = ShapedBatchedEnv(
-                inner, shaping_for(pair, inner, bank), preset.bank_match_keys
-            )
-            shapeds.append(ppo_rate(shaped_env, config))
-        plain, shaped = statistics.median(plains), statistics.median(shapeds)
+            for form in forms:
+                inner = make_batched(target_id, config.num_envs)
+                shaped_env = ShapedBatchedEnv(
+                    inner, shaping_for(pair, inner, bank, form), preset.bank_match_keys
+                )
+                shapeds[form].append(ppo_rate(shaped_env, config))
+        plain = statistics.median(plains)
+        shaped = {f: statistics.median(r) for f, r in shapeds.items()}
         print(
-            f"{pair:14s} {raw:9.0f} {alone:9.0f} {plain:8.0f} {shaped:8.0f}  "
-            f"{shaped / plain:10.2f}  {plain / raw:7.2f}"
+            f"{pair:14s} {raw:9.0f} {alone:9.0f} {plain:8.0f} "
+            + " ".join(f"{shaped[f]:9.0f}" for f in forms)
+            + "  "
+            + "  ".join(f"{shaped[f] / plain:10.2f}" for f in forms)
+            + f"  {plain / raw:7.2f}"
         )
 
 

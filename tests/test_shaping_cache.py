@@ -148,13 +148,22 @@ def test_each_presets_encoder_rounds_a_row_alike_in_16_and_512_rows(pair: str) -
     x = torch.randn(1024, n_s + a_s, generator=gen)
     previous = torch.get_num_threads()
     torch.set_num_threads(1)
+    # and the target's: a rollout's deferred terms encode its rows 512 at a time
+    x_t = torch.randn(1024, n_t + a_t, generator=gen)
     try:
         with torch.no_grad():
             big = torch.cat([model.shared_source(b).mean for b in x.split(512)])
             steps = torch.cat([model.shared_source(b).mean for b in x.split(16)])
+            big_t = [model.shared_target(b) for b in x_t.split(512)]
+            steps_t = [model.shared_target(b) for b in x_t.split(16)]
     finally:
         torch.set_num_threads(previous)
     assert torch.equal(big, steps)
+    for part in ("mean", "logvar"):
+        assert torch.equal(
+            torch.cat([getattr(q, part) for q in big_t]),
+            torch.cat([getattr(q, part) for q in steps_t]),
+        )
 
 
 def _shaping(model: SharedSpaceModel, bank: SourceBank, time_scale: float = 1.0) -> LatentShaping:
@@ -229,3 +238,92 @@ def test_the_source_half_is_encoded_once(bank: SourceBank, monkeypatch: pytest.M
     rows = encode_batch_rows(2)
     assert rows == (512 if torch.get_num_threads() == 1 else MIN_BATCH_ROWS)
     assert set(calls) == {rows} and sum(calls) == -(-700 // rows) * rows
+
+
+@pytest.mark.parametrize(
+    ("name", "form", "copies", "start"),
+    [
+        ("pved", "eq10", 16, 0),
+        ("pved", "potential", 16, 500),
+        ("gupta2017", "log1p", 16, 0),
+        ("pved", "potential", 3, 0),
+    ],
+)
+def test_a_rollouts_deferred_terms_are_the_per_step_ones_to_the_bit(
+    bank: SourceBank, name: str, form: str, copies: int, start: int, threads: int
+) -> None:
+    # the same actions through a per-step env and a deferred one, 130 steps (an episode
+    # boundary, a shaping start mid-rollout), the terms taken in two rollouts of 70 and 60
+    model = _model(name, bank)
+
+    def make() -> ShapedBatchedEnv:
+        env = make_batched(TARGET_PUSH, copies)
+        shaping = LatentShaping(
+            model, bank, BETA, env.robot_state_indices, form=form, start=start, gamma=0.9,
+            time_scale=0.3 if name == "gupta2017" else 1.0,
+        )  # fmt: skip
+        return ShapedBatchedEnv(env, shaping, MATCH_KEYS)
+
+    per_step, deferred = make(), make()
+    deferred.defer_terms()
+    per_step.reset(seed=2)
+    deferred.reset(seed=2)
+    rng = np.random.default_rng(2)
+    n_act = per_step.single_action_space.shape[0]
+    terms, taken = [], []
+    for step in range(130):
+        mean = rng.uniform(-1.2, 1.2, (copies, n_act))
+        act = rng.uniform(-1, 1, (copies, n_act))
+        per_step.set_mean_actions(mean)
+        deferred.set_mean_actions(mean)
+        _, reward, _, _, info = per_step.step(act)
+        _, d_reward, _, _, d_info = deferred.step(act)
+        terms.append(info["reward_shaping"])
+        assert np.array_equal(reward, info["env_reward"] + info["reward_shaping"])
+        assert "reward_shaping" not in d_info
+        assert np.array_equal(d_reward, info["env_reward"])
+        if step in (69, 129):
+            taken.append(deferred.deferred_terms())
+    assert [len(t) for t in taken] == [70, 60]
+    assert np.array_equal(np.concatenate(taken), np.array(terms))
+    assert np.any(np.array(terms) != 0)
+    if start:
+        assert np.all(np.array(terms)[: -(-start // copies)] == 0)
+    assert np.array_equal(deferred._previous, per_step._previous)
+
+
+def test_shaped_ppo_is_the_same_whether_the_terms_come_per_step_or_deferred(
+    bank: SourceBank,
+) -> None:
+    from pved.rl.ppo import PPOConfig, train_ppo
+
+    class PerStep(ShapedBatchedEnv):
+        defer_terms = None  # type: ignore[assignment]  # PPO then takes each step's term per step
+
+    model = _model("pved", bank)
+    cfg = PPOConfig(
+        num_envs=16, steps_per_env=64, minibatch_size=256, epochs=2, hidden_sizes=(16, 16),
+        total_steps=3 * 16 * 64, checkpoint_every=0, seed=4,
+    )  # fmt: skip
+    params = []
+    for cls in (ShapedBatchedEnv, PerStep):
+        env = make_batched(TARGET_PUSH, 16)
+        shaping = LatentShaping(model, bank, BETA, env.robot_state_indices, form="potential")
+        policy = train_ppo(cls(env, shaping, MATCH_KEYS), cfg, progress=False)
+        params.append(torch.cat([p.detach().flatten() for p in policy.net.parameters()]))
+    assert torch.equal(params[0], params[1])
+
+
+def test_a_shaped_env_with_deferred_terms_pending_refuses_to_save(bank: SourceBank) -> None:
+    inner = make_batched(TARGET_PUSH, 2)
+    shaping = LatentShaping(_model("pved", bank), bank, BETA, inner.robot_state_indices)
+    env = ShapedBatchedEnv(inner, shaping, MATCH_KEYS)
+    env.defer_terms()
+    env.reset(seed=0)
+    act = np.zeros((2, env.single_action_space.shape[0]))
+    env.set_mean_actions(act)
+    env.step(act)
+    with pytest.raises(PvedError, match="deferred terms not yet taken"):
+        env.state_dict()
+    assert env.deferred_terms().shape == (1, 2)
+    assert env.state_dict() is not None

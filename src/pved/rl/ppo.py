@@ -419,6 +419,25 @@ def _env_state_api(env: BatchedEnv) -> tuple[Callable[[], Any], Callable[[Any], 
     return None
 
 
+def _deferred_terms_api(env: BatchedEnv) -> Callable[[], np.ndarray] | None:
+    """The env's optional deferred reward terms.
+
+    A wrapper that adds a term to the reward (Eq. 10's shaping) may compute it for a whole
+    rollout at once, far cheaper than step by step (one encoder batch for many steps).
+    It exposes ``defer_terms()``, which PPO calls once to switch it on; from then on its
+    ``step`` returns the reward without the term (``info["env_reward"]`` still set), and
+    ``deferred_terms() -> (T, N)`` returns the terms of the steps since the last call, in
+    order, exactly the values ``step`` would have added. PPO asks for them at the end of
+    every rollout, before it reads any reward.
+    """
+    defer = getattr(env, "defer_terms", None)
+    terms = getattr(env, "deferred_terms", None)
+    if callable(defer) and callable(terms):
+        defer()
+        return cast(Callable[[], np.ndarray], terms)
+    return None
+
+
 def _to_saveable(obj: Any) -> Any:
     """numpy arrays → tensors (recursively) so a state loads with weights_only=True."""
     if isinstance(obj, np.ndarray):
@@ -501,6 +520,7 @@ class _Trainer:
         if guide is not None and not isinstance(guide, ActionGuide):
             raise PvedError(f"{type(env).__name__}.action_guide is not an ActionGuide")
         self.guide: ActionGuide | None = guide
+        self.deferred_terms = _deferred_terms_api(env)
 
         T, N, A = config.steps_per_env, config.num_envs, self.act_dim
         self.buf_obs = np.zeros((T, N, self.obs_dim), dtype=np.float32)
@@ -513,6 +533,11 @@ class _Trainer:
         self.buf_boot = np.zeros((T, N), dtype=np.float32)
         self.buf_trunc = np.zeros((T, N), dtype=bool)
         self.buf_ctx = np.zeros((T, N, guide.context_dim if guide else 0), dtype=np.float32)
+        # each step's reward as the env gave it, its env part (info["env_reward"]) and its
+        # shaping term (added after the rollout when deferred); read by _account
+        self.buf_given = np.zeros((T, N), dtype=np.float64)
+        self.buf_env_part = np.zeros((T, N), dtype=np.float64)
+        self.buf_shaping = np.zeros((T, N), dtype=np.float64)
 
     # -- start / checkpoint ----------------------------------------------------------
     def reset_env(self, seed: int) -> None:
@@ -606,13 +631,13 @@ class _Trainer:
         """Collect T steps from all N envs into the buffers; returns finished episodes'
         returns, lengths and successes."""
         cfg = self.cfg
-        episodes: dict[str, list[float]] = {"return": [], "length": [], "success": []}
         std = np.exp(self.log_std)
         self.buf_trunc[:] = False
         # per-step sums of the env's named reward terms (and of the shaping wrapper's
         # env_reward / reward_shaping), so a shaped run shows what each part contributed
         term_sums: dict[str, float] = {}
-        clip_hits = 0  # steps whose scaled env reward the ±reward_clip bound
+        shaped = False  # whether the env's reward carries a shaping term
+        successes: list[np.ndarray | None] = []  # per step: is_success of its copies
         for t in range(cfg.steps_per_env):
             obs_n = self.obs_norm(self.obs)
             mean, value = self._forward(obs_n)
@@ -628,7 +653,6 @@ class _Trainer:
             next_obs, reward, terminated, truncated, info = self.env.step(
                 np.clip(action.astype(np.float64), self.low, self.high)
             )
-            reward = np.asarray(reward, dtype=np.float64)
             terminated = np.asarray(terminated, dtype=bool)
             done = terminated | np.asarray(truncated, dtype=bool)
             self.obs = np.asarray(next_obs, dtype=np.float64)
@@ -637,44 +661,18 @@ class _Trainer:
             for key, value in info.items():
                 if key.startswith("reward_") or key == "env_reward":
                     term_sums[key] = term_sums.get(key, 0.0) + float(np.sum(value))
-
-            # episode statistics on the raw env reward
-            self.ep_ret += reward
-            self.ep_len += 1
-            if done.any():
-                idx = np.flatnonzero(done)
-                episodes["return"].extend(self.ep_ret[idx].tolist())
-                episodes["length"].extend(self.ep_len[idx].tolist())
-                if "is_success" in info:
-                    episodes["success"].extend(
-                        np.asarray(info["is_success"], dtype=np.float64)[idx].tolist()
-                    )
-                self.ep_ret[idx] = 0.0
-                self.ep_len[idx] = 0
-
-            if cfg.normalize_reward:
-                # Rewards are divided by the running std σ of the discounted return of the
-                # reward optimised, and the env reward is clipped to ±clip as in plain PPO.
-                # A shaped env's term (info["reward_shaping"]) is divided by the same σ and
-                # never clipped, so the reward is (r_env − β·D)/σ, Eq. 10's sum times one
-                # positive number, wherever the env clip does not bind (as often as in
-                # plain PPO): β weighs the term linearly, and a zero term is plain PPO
-                # (docs/decisions.md, "Reward normalisation under shaping").
-                term = info.get("reward_shaping")
-                self.ret_acc = self.ret_acc * cfg.gamma + reward
-                self.ret_rms.update(self.ret_acc)
-                scale = math.sqrt(float(self.ret_rms.var) + 1e-8)
-                env_part = reward
-                if term is not None:
-                    term = np.asarray(term, dtype=np.float64)
-                    env_part = np.asarray(info.get("env_reward", reward - term), np.float64)
-                scaled = env_part / scale
-                clip_hits += int(np.count_nonzero(np.abs(scaled) > cfg.reward_clip))
-                reward = np.clip(scaled, -cfg.reward_clip, cfg.reward_clip)
-                if term is not None:
-                    reward = reward + term / scale
-                self.ret_acc[done] = 0.0
-            self.buf_rew[t] = reward
+            reward = np.asarray(reward, dtype=np.float64)
+            self.buf_given[t] = reward
+            if "reward_shaping" in info:
+                shaped = True
+                term = np.asarray(info["reward_shaping"], dtype=np.float64)
+                self.buf_shaping[t] = term
+                self.buf_env_part[t] = np.asarray(info.get("env_reward", reward - term), np.float64)
+            else:
+                self.buf_env_part[t] = reward
+            successes.append(
+                np.asarray(info["is_success"], dtype=np.float64) if "is_success" in info else None
+            )
             self.buf_done[t] = done
             self.buf_term[t] = terminated
             self.obs_norm.update(self.obs)
@@ -686,8 +684,61 @@ class _Trainer:
                 final = np.asarray(info["final_obs"], dtype=np.float64)[idx]
                 self.buf_boot[t, idx] = self._value(self.obs_norm(final))
                 self.buf_trunc[t, idx] = True
+        if self.deferred_terms is not None:
+            # the env left its shaping term out of each step's reward: add it now, as if
+            # it had come with the step (the reward and info the env would have given)
+            terms = np.asarray(self.deferred_terms(), dtype=np.float64)
+            shaped = True
+            self.buf_shaping[:] = terms
+            self.buf_env_part[:] = self.buf_given
+            self.buf_given += terms
+            term_sums["reward_shaping"] = float(np.sum(terms))
+        episodes = self._account(shaped, successes)
         self.global_step += cfg.batch_size
         self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
+        return episodes
+
+    def _account(self, shaped: bool, successes: list[np.ndarray | None]) -> dict[str, list[float]]:
+        """The rollout's rewards, step by step in the order they came: episode statistics
+        on the env's reward, then the reward PPO optimises into ``buf_rew`` (normalised
+        when ``normalize_reward``); returns the finished episodes' statistics."""
+        cfg = self.cfg
+        episodes: dict[str, list[float]] = {"return": [], "length": [], "success": []}
+        clip_hits = 0  # steps whose scaled env reward the ±reward_clip bound
+        for t in range(cfg.steps_per_env):
+            reward = self.buf_given[t]
+            done = self.buf_done[t]
+            # episode statistics on the reward the env gave
+            self.ep_ret += reward
+            self.ep_len += 1
+            if done.any():
+                idx = np.flatnonzero(done)
+                episodes["return"].extend(self.ep_ret[idx].tolist())
+                episodes["length"].extend(self.ep_len[idx].tolist())
+                success = successes[t]
+                if success is not None:
+                    episodes["success"].extend(success[idx].tolist())
+                self.ep_ret[idx] = 0.0
+                self.ep_len[idx] = 0
+
+            if cfg.normalize_reward:
+                # Rewards are divided by the running std σ of the discounted return of the
+                # reward optimised, and the env reward is clipped to ±clip as in plain PPO.
+                # A shaped env's term (info["reward_shaping"]) is divided by the same σ and
+                # never clipped, so the reward is (r_env − β·D)/σ, Eq. 10's sum times one
+                # positive number, wherever the env clip does not bind (as often as in
+                # plain PPO): β weighs the term linearly, and a zero term is plain PPO
+                # (docs/decisions.md, "Reward normalisation under shaping").
+                self.ret_acc = self.ret_acc * cfg.gamma + reward
+                self.ret_rms.update(self.ret_acc)
+                scale = math.sqrt(float(self.ret_rms.var) + 1e-8)
+                scaled = self.buf_env_part[t] / scale
+                clip_hits += int(np.count_nonzero(np.abs(scaled) > cfg.reward_clip))
+                reward = np.clip(scaled, -cfg.reward_clip, cfg.reward_clip)
+                if shaped:
+                    reward = reward + self.buf_shaping[t] / scale
+                self.ret_acc[done] = 0.0
+            self.buf_rew[t] = reward
         self.clipped_share = clip_hits / cfg.batch_size
         return episodes
 
@@ -707,9 +758,7 @@ class _Trainer:
         )
 
     # -- update ----------------------------------------------------------------------
-    def _guide(
-        self, ctx: np.ndarray | None, mean: np.ndarray
-    ) -> tuple[float, np.ndarray] | None:
+    def _guide(self, ctx: np.ndarray | None, mean: np.ndarray) -> tuple[float, np.ndarray] | None:
         """The guide's loss and dL/dmean (B, A) at a minibatch, None without a guide."""
         if self.guide is None or ctx is None:
             return None

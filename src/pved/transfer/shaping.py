@@ -25,6 +25,7 @@ sum to the reward) and the unshaped env reward in ``info["env_reward"]``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -37,7 +38,12 @@ from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
 from pved.rl.guide import GUIDE_CONTEXT
 from pved.transfer.source_bank import SourceBank
-from pved.transfer.source_cache import EncodedBank, encode_bank, encode_batch_rows
+from pved.transfer.source_cache import (
+    MIN_BATCH_ROWS,
+    EncodedBank,
+    encode_bank,
+    encode_batch_rows,
+)
 
 # How the distance D enters the reward: "eq10" is the paper's −β·D; "log1p" is
 # −β·log(1 + D), an option outside the paper (docs/decisions.md, "A log-scaled shaping");
@@ -162,10 +168,34 @@ class LatentShaping:
         """Shaping term (N,) for target observations (N, obs_dim) and actions (N, act_dim)
         at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,); 0 while
         fewer than ``start`` rows have been shaped before this call."""
-        before = self.steps
-        self.steps += len(obs)
-        if before < self.start:
+        if self.held(len(obs)):
             return np.zeros(len(obs))
+        return self.values(obs, action, episode, t, len(obs))
+
+    def held(self, rows: int) -> bool:
+        """Count ``rows`` more rows shaped; True when fewer than ``start`` had been shaped
+        before them (their term is then 0)."""
+        before = self.steps
+        self.steps += rows
+        return before < self.start
+
+    def values(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        episode: np.ndarray,
+        t: np.ndarray,
+        step_rows: int,
+    ) -> np.ndarray:
+        """−β·D (or −β·log(1 + D)) for rows (M,) of one or many steps of ``step_rows``
+        copies each (M a multiple of it), whatever the start; same arguments as
+        :meth:`reward`.
+
+        The target rows are encoded in batches of :func:`encode_batch_rows` rows (many
+        steps' at once) where a step's copies are a multiple of 16, else a step's at a
+        time: the row count that keeps each row's bits those of a one-step encode
+        (source_cache.py), so a rollout's terms computed at once
+        (:meth:`ShapedBatchedEnv.deferred_terms`) are the per-step terms to the bit."""
         x_t = np.concatenate([obs[:, self.robot_state_indices], action], 1)
         if x_t.shape[1] != self.model.target_dim:
             raise PvedError(
@@ -173,10 +203,16 @@ class LatentShaping:
                 f"{self.model.target_dim}"
             )
         # the source half is the bank's, encoded once per run in batches sized after
-        # this call's, which keeps the per-step encode's bits (source_cache.py)
-        q_s = self.encoded(len(obs)).lookup(episode, t, self.time_scale)
+        # one step's rows, which keeps the per-step encode's bits (source_cache.py)
+        q_s = self.encoded(step_rows).lookup(episode, t, self.time_scale)
+        batch = encode_batch_rows(step_rows) if step_rows % MIN_BATCH_ROWS == 0 else step_rows
+        x = torch.as_tensor(x_t, dtype=torch.float32)
         with torch.no_grad():
-            q_t = self.model.shared_target(torch.as_tensor(x_t, dtype=torch.float32))
+            parts = [self.model.shared_target(chunk) for chunk in x.split(batch)]
+            q_t = SharedRep(
+                torch.cat([p.mean for p in parts]),
+                None if parts[0].logvar is None else torch.cat([p.logvar for p in parts]),  # type: ignore[misc]
+            )
             distance = self.model.shaping_between(q_s, q_t)
         d = distance.double().numpy()
         if self.form == "log1p":
@@ -268,6 +304,18 @@ class AlignGuide:
         return float(loss.detach()), grad.numpy()
 
 
+@dataclass
+class _PendingStep:
+    """One step's inputs to a deferred term (:meth:`ShapedBatchedEnv.deferred_terms`)."""
+
+    obs: np.ndarray  # (N, obs_dim) the observations the step was taken from
+    encoded: np.ndarray | None  # (N, act_dim) the actions encoded; None: no term (align)
+    episode: np.ndarray  # (N,) bank episodes
+    t: np.ndarray  # (N,) steps within them
+    held: bool  # before the shaping start: the term is 0
+    done: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (N,)
+
+
 class ShapedBatchedEnv(BatchedEnv):
     """A batched env whose reward carries the Eq. 10 shaping term."""
 
@@ -288,6 +336,44 @@ class ShapedBatchedEnv(BatchedEnv):
         # each copy's last value of LatentShaping.reward (the potential form's Φ_{t−1})
         self._previous = np.zeros(self.num_envs)
         self._guide: AlignGuide | None = None
+        # deferred terms (defer_terms): each step's inputs, kept until deferred_terms
+        self._deferred = False
+        self._pending: list[_PendingStep] = []
+
+    def defer_terms(self) -> None:
+        """From now on leave the term out of each step's reward and return the terms of
+        the steps since the last call from :meth:`deferred_terms` (pved's PPO asks for
+        them after each rollout): a rollout's target rows are then encoded in a few large
+        batches instead of one small batch a step (``pved.rl.ppo``)."""
+        self._deferred = True
+
+    def deferred_terms(self) -> np.ndarray:
+        """The terms (T, N) of the T steps since the last call, in order: to the bit what
+        :meth:`step` would have added to their rewards (tests/test_shaping_cache.py)."""
+        pending, self._pending = self._pending, []
+        terms = np.zeros((len(pending), self.num_envs))
+        shaped = [k for k, p in enumerate(pending) if not p.held and p.encoded is not None]
+        if shaped:
+            n = self.num_envs
+            values = self.shaping.values(
+                np.concatenate([pending[k].obs for k in shaped]),
+                np.concatenate([pending[k].encoded for k in shaped]),
+                np.concatenate([pending[k].episode for k in shaped]),
+                np.concatenate([pending[k].t for k in shaped]),
+                n,
+            ).reshape(len(shaped), n)
+            for row, k in enumerate(shaped):
+                terms[k] = values[row]
+        if self.shaping.form == "align":
+            return terms
+        previous = self._previous
+        for k, p in enumerate(pending):
+            value = terms[k].copy()
+            terms[k] = self.shaping.term(value, previous)
+            previous = value
+            previous[p.done] = 0.0
+        self._previous = previous
+        return terms
 
     @property
     def action_guide(self) -> AlignGuide | None:
@@ -315,6 +401,7 @@ class ShapedBatchedEnv(BatchedEnv):
         self._obs = obs
         self._t[:] = 0
         self._previous[:] = 0.0
+        self._pending = []  # the steps before a reset are not part of any rollout
         params = task_params(info, self.match_keys, self.num_envs)
         self._episode = self.shaping.bank.match(params, self._rng)
         return obs, info
@@ -336,10 +423,18 @@ class ShapedBatchedEnv(BatchedEnv):
             self._mean = None  # one step's mean, never reused for the next
         guide = self.action_guide
         context = None
+        pending = None
+        shaping = np.zeros(self.num_envs)
         if guide is not None:  # no reward term: the context of PPO's loss on the mean
             self.shaping.steps += self.num_envs
-            shaping = np.zeros(self.num_envs)
             context = guide.context(self._obs, self._episode, self._t)
+            if self._deferred:
+                pending = _PendingStep(self._obs, None, self._episode, self._t, True)
+        elif self._deferred:  # the term comes later, for the whole rollout at once
+            held = self.shaping.held(self.num_envs)
+            pending = _PendingStep(
+                self._obs.copy(), encoded, self._episode.copy(), self._t.copy(), held
+            )
         else:
             value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
             shaping = self.shaping.term(value, self._previous)
@@ -349,16 +444,23 @@ class ShapedBatchedEnv(BatchedEnv):
         if context is not None:
             info[GUIDE_CONTEXT] = context
         info["env_reward"] = env_reward
-        info["reward_shaping"] = shaping
         done = terminated | truncated
+        if pending is not None:
+            pending.done = np.asarray(done, dtype=bool).copy()
+            self._pending.append(pending)
+            reward = np.asarray(env_reward, dtype=np.float64)
+        else:
+            info["reward_shaping"] = shaping
+            reward = env_reward + shaping
         self._t += 1
         if done.any():
             self._t[done] = 0
-            self._previous[done] = 0.0
+            if not self._deferred:
+                self._previous[done] = 0.0
             params = task_params(info, self.match_keys, self.num_envs)
             self._episode[done] = self.shaping.bank.match(params[done], self._rng)
         self._obs = obs
-        return obs, env_reward + shaping, terminated, truncated, info
+        return obs, reward, terminated, truncated, info
 
     def state_dict(self) -> dict[str, Any] | None:
         """The wrapped env's :meth:`state_dict` with this wrapper's own (the last
@@ -368,6 +470,8 @@ class ShapedBatchedEnv(BatchedEnv):
         save = getattr(self.env, "state_dict", None)
         if not callable(save):
             return None
+        if self._pending:
+            raise PvedError("the shaped env has deferred terms not yet taken: save after them")
         return {
             "env": save(),
             "obs": self._obs.copy(),

@@ -3,11 +3,11 @@
 Eq. 10's term is D(q_φS(c | s_S, a_S), q_φT(c | s_T, a_T)). The source row (s_S, a_S)
 comes from the bank (``source_bank.py``), which is fixed for the whole run, so its
 posterior q_φS depends on nothing the target does: :func:`encode_bank` encodes every bank
-row once, and each step looks the posteriors up (:meth:`EncodedBank.lookup`) and encodes
-only the target's rows. Until 2026-12-05 both halves were encoded at every step, which
-cost reacher, whose physics is cheapest, a fifth of plain PPO's rate; most of what is
-left is torch's per-operator overhead on the target's 16 rows (docs/results.md, "What
-the shaping costs a run").
+row once, and each step looks the posteriors up (:meth:`EncodedBank.lookup`); the
+target's rows are encoded once per rollout (:meth:`ShapedBatchedEnv.deferred_terms`).
+Until 2026-12-05 both halves were encoded at every step, which cost reacher, whose
+physics is cheapest, a fifth of plain PPO's rate (docs/results.md, "What the shaping
+costs a run").
 
 The looked-up posteriors are the per-step encoder's to the bit, so the term and the runs
 are unchanged and no config key marks the change. What that takes (measured with torch's
