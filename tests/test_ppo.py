@@ -21,15 +21,9 @@ from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
 from pved.flat import FlatAdam
 from pved.rl.evaluate import evaluate_policy
+from pved.rl.losses import compute_gae, ppo_loss, ppo_loss_grad
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import (
-    PPOConfig,
-    _Trainer,
-    compute_gae,
-    ppo_loss,
-    ppo_loss_grad,
-    train_ppo,
-)
+from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
 from pved.runs import Run
 
 TOY = {

@@ -6,8 +6,9 @@ and returns a :class:`Policy`; ``load_policy(path)`` reads a saved one back;
 """
 
 from pved.rl.evaluate import evaluate_policy
+from pved.rl.losses import compute_gae, ppo_loss, ppo_loss_grad
 from pved.rl.policy import Policy, load_policy
-from pved.rl.ppo import PPOConfig, compute_gae, ppo_loss, ppo_loss_grad, train_ppo
+from pved.rl.ppo import PPOConfig, train_ppo
 
 __all__ = [
     "PPOConfig",
