@@ -27,6 +27,7 @@ def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
     out = run_demo(tmp_path / "runs", tmp_path / "report", cfg)
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert [(r["method"], r["seeds"], r["steps"]) for r in rows] == [
+        ("pved-align", [20000], 2048),
         ("pved", [20000], 2048),
         ("ppo", [20000], 2048),
     ]
@@ -35,11 +36,22 @@ def test_demo_runs_every_stage_into_a_report(tmp_path: Path) -> None:
     for method in cfg.methods:
         run = tmp_path / "runs/reacher/transfer" / method / "seed20000"
         assert json.loads((run / "result.json").read_text())["steps"] == 2048
-    # it ends by saying whether the transfer shows, from the same runs
+    # pved-align ran at the β the demo names for it, pved at the pair's default
+    configs = {
+        m: json.loads((tmp_path / f"runs/reacher/transfer/{m}/seed20000/config.json").read_text())
+        for m in ("pved-align", "pved")
+    }
+    assert configs["pved-align"]["config"]["beta"] == dict(cfg.betas)["pved-align"] == 1.0
+    assert configs["pved"]["config"]["beta"] != 1.0
+    # it ends by saying, for each shaped method, whether the transfer shows
     text = (out / "results.md").read_text()
-    assert "## Does the transfer show?" in text and "pved − ppo" in text
-    comparison = json.loads((out / "comparison.json").read_text())
-    assert text.rstrip().endswith(transfer_verdict(comparison))
+    comparisons = json.loads((out / "comparisons.json").read_text())
+    assert list(comparisons) == ["pved-align", "pved"]
+    assert "## Does the transfer show?" in text
+    for method, comparison in comparisons.items():
+        assert f"### {method} against ppo" in text and f"{method} − ppo" in text
+        assert transfer_verdict(comparison) in text
+    assert text.rstrip().endswith(transfer_verdict(comparisons["pved"]))
 
 
 def _comparison(final: tuple[float, float], early: tuple[float, float]) -> dict:
