@@ -99,3 +99,30 @@ def push_bank_and_model(episodes: int = 8) -> tuple[Any, Any]:
         torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
     )
     return bank, model
+
+
+def placeholder_shaping_inputs(runs: Path) -> tuple[Path, Path]:
+    """reacher's default model and bank files under ``runs``, with placeholder bytes: a
+    transfer spec hashes them and reads nothing else. Returns (model, bank)."""
+    model = runs / "reacher" / "model" / "pved" / "seed0" / "model.pt"
+    bank = runs / "reacher" / "bank" / "Reacher3-Push" / "seed0" / "bank.npz"
+    for path in (model, bank):
+        path.parent.mkdir(parents=True)
+        path.write_bytes(path.name.encode())
+    return model, bank
+
+
+def first_minibatch(trainer: Any, rows: int) -> tuple[np.ndarray, ...]:
+    """The first ``rows`` rows of a PPO trainer's rollout buffers, after a rollout, in
+    ``_grad_numpy``'s argument order (the guide's context last)."""
+    adv, ret = trainer.advantages()
+    n = trainer.cfg.batch_size
+    return (
+        trainer.buf_obs.reshape(n, -1)[:rows],
+        trainer.buf_act.reshape(n, -1)[:rows],
+        trainer.buf_logp.reshape(n)[:rows],
+        adv.reshape(n)[:rows].astype(np.float32),
+        ret.reshape(n)[:rows].astype(np.float32),
+        trainer.buf_val.reshape(n)[:rows],
+        trainer.buf_ctx.reshape(n, -1)[:rows],
+    )

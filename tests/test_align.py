@@ -13,7 +13,13 @@ import numpy as np
 import pytest
 
 import pved  # noqa: F401  (registers the env ids)
-from helpers import assert_ppo_resumes_exactly, params_of, push_bank_and_model
+from helpers import (
+    assert_ppo_resumes_exactly,
+    first_minibatch,
+    params_of,
+    placeholder_shaping_inputs,
+    push_bank_and_model,
+)
 from pved.envs import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
@@ -163,17 +169,7 @@ def test_the_guide_s_gradient_is_the_same_in_both_backends() -> None:
     tr = _Trainer(_Guided(4), cfg)
     tr.reset_env(0)
     tr.rollout()
-    adv, ret = tr.advantages()
-    n = cfg.batch_size
-    mb = (
-        tr.buf_obs.reshape(n, -1)[:64],
-        tr.buf_act.reshape(n, -1)[:64],
-        tr.buf_logp.reshape(n)[:64],
-        adv.reshape(n)[:64].astype(np.float32),
-        ret.reshape(n)[:64].astype(np.float32),
-        tr.buf_val.reshape(n)[:64],
-        tr.buf_ctx.reshape(n, -1)[:64],
-    )
+    mb = first_minibatch(tr, 64)
     s_np = tr._grad_numpy(*mb)
     g_np = tr.flat.grad_np.copy()
     s_t = tr._grad_torch(*mb)
@@ -204,11 +200,7 @@ def test_pved_align_is_a_method_with_its_own_config(
     method = get_method("pved-align")
     assert (method.model, method.shaping_form, method.paper) == ("pved", "align", False)
     runs = tmp_path / "runs"
-    model = runs / "reacher" / "model" / "pved" / "seed0" / "model.pt"
-    bank = runs / "reacher" / "bank" / "Reacher3-Push" / "seed0" / "bank.npz"
-    for path in (model, bank):
-        path.parent.mkdir(parents=True)
-        path.write_bytes(path.name.encode())  # hashed, not read
+    placeholder_shaping_inputs(runs)
     spec = transfer_spec("reacher", "pved-align", runs_root=runs)
     assert spec.config["shaping_form"] == "align"
     assert spec.config["align_anneal"] == ALIGN_ANNEAL

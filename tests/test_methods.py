@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import pved  # noqa: F401  (registers the env ids)
-from helpers import assert_ppo_resumes_exactly, push_bank_and_model
+from helpers import assert_ppo_resumes_exactly, placeholder_shaping_inputs, push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.experiments.protocol import ProtocolPlan
@@ -123,11 +123,7 @@ def test_every_method_is_a_recipe_the_registry_checks() -> None:
 
 def test_pved_potential_runs_on_pveds_model_with_its_own_config(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
-    model = runs / "reacher" / "model" / "pved" / "seed0" / "model.pt"
-    bank = runs / "reacher" / "bank" / "Reacher3-Push" / "seed0" / "bank.npz"
-    for path in (model, bank):
-        path.parent.mkdir(parents=True)
-        path.write_bytes(path.name.encode())  # hashed, not read
+    model, bank = placeholder_shaping_inputs(runs)
     plain = transfer_spec("reacher", "pved", runs_root=runs)
     potential = transfer_spec("reacher", "pved-potential", runs_root=runs)
     # the same model and bank by default, the method's form, a config of its own

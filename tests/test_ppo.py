@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import Interrupt, assert_ppo_resumes_exactly, params_of
+from helpers import Interrupt, assert_ppo_resumes_exactly, first_minibatch, params_of
 from pved.envs.gym_adapter import GymnasiumBatch
 from pved.envs.hopper_v5 import HopperV5Batch
 from pved.envs.registry import make_batched
@@ -251,18 +251,9 @@ def test_numpy_backward_matches_autograd_through_networks(activation: str) -> No
     tr = _Trainer(HopperV5Batch(4), cfg)
     tr.reset_env(0)
     tr.rollout()
-    adv, ret = tr.advantages()
+    mb = first_minibatch(tr, 64)
     tr.flat.flat_np += (
         np.random.default_rng(1).normal(scale=0.05, size=tr.flat.flat_np.size).astype(np.float32)
-    )
-    n = cfg.batch_size
-    mb = (
-        tr.buf_obs.reshape(n, -1)[:64],
-        tr.buf_act.reshape(n, -1)[:64],
-        tr.buf_logp.reshape(n)[:64],
-        adv.reshape(n)[:64].astype(np.float32),
-        ret.reshape(n)[:64].astype(np.float32),
-        tr.buf_val.reshape(n)[:64],
     )
     s_np = tr._grad_numpy(*mb)
     g_np = tr.flat.grad_np.copy()
