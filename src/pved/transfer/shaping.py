@@ -352,7 +352,7 @@ class ShapedBatchedEnv(BatchedEnv):
         :meth:`step` would have added to their rewards (tests/test_shaping_cache.py)."""
         pending, self._pending = self._pending, []
         terms = np.zeros((len(pending), self.num_envs))
-        shaped = [k for k, p in enumerate(pending) if not p.held and p.encoded is not None]
+        shaped = [k for k, p in enumerate(pending) if p.encoded is not None and not p.held]
         if shaped:
             n = self.num_envs
             values = self.shaping.values(
@@ -426,10 +426,10 @@ class ShapedBatchedEnv(BatchedEnv):
         pending = None
         shaping = np.zeros(self.num_envs)
         if guide is not None:  # no reward term: the context of PPO's loss on the mean
-            self.shaping.steps += self.num_envs
+            self.shaping.held(self.num_envs)  # counted as shaped (align has no start)
             context = guide.context(self._obs, self._episode, self._t)
-            if self._deferred:
-                pending = _PendingStep(self._obs, None, self._episode, self._t, True)
+            if self._deferred:  # a step with no term: deferred_terms gives it 0
+                pending = _PendingStep(self._obs, None, self._episode, self._t, held=False)
         elif self._deferred:  # the term comes later, for the whole rollout at once
             held = self.shaping.held(self.num_envs)
             pending = _PendingStep(
