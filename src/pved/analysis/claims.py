@@ -208,7 +208,7 @@ def similar_pvalue(minus: dict[str, float], plus: dict[str, float], verdict: str
 
 
 @dataclass
-class _Pair:
+class PairSummary:
     """One pair of one protocol directory's summary."""
 
     name: str
@@ -236,7 +236,7 @@ def load_summary(directory: Path) -> dict[str, Any]:
     return summary
 
 
-def _check_pair(path: Path, name: str, entry: Any) -> tuple[str, dict[str, dict[str, Any]]]:
+def check_pair(path: Path, name: str, entry: Any) -> tuple[str, dict[str, dict[str, Any]]]:
     """(metric, methods) of one pair's summary entry, checked for the fields read here."""
     if not isinstance(entry, dict):
         raise PvedError(f"{path}: pair {name!r} is not a mapping")
@@ -256,7 +256,7 @@ def _check_pair(path: Path, name: str, entry: Any) -> tuple[str, dict[str, dict[
     return metric, methods
 
 
-def load_pairs(dirs: Sequence[Path]) -> dict[str, _Pair]:
+def load_pairs(dirs: Sequence[Path]) -> dict[str, PairSummary]:
     """Every pair of the protocol directories ``dirs``. Raises PvedError (one line) for no
     DIR, a DIR without a (valid) summary.json, or a pair found in two DIRs."""
     if not dirs:
@@ -265,22 +265,22 @@ def load_pairs(dirs: Sequence[Path]) -> dict[str, _Pair]:
     twice = next((d for i, d in enumerate(seen) if d in seen[:i]), None)
     if twice is not None:
         raise PvedError(f"{twice} is given twice: give each protocol directory once")
-    pairs: dict[str, _Pair] = {}
+    pairs: dict[str, PairSummary] = {}
     for directory in map(Path, dirs):
         summary = load_summary(directory)
         budget = str(summary.get("budget", "?"))
         for name, entry in summary["pairs"].items():
-            metric, methods = _check_pair(directory / "summary.json", name, entry)
+            metric, methods = check_pair(directory / "summary.json", name, entry)
             if name in pairs:
                 raise PvedError(
                     f"pair {name!r} is in both {pairs[name].directory} and {directory}: "
                     "give each pair once"
                 )
-            pairs[name] = _Pair(name, metric, directory, budget, methods)
+            pairs[name] = PairSummary(name, metric, directory, budget, methods)
     return pairs
 
 
-def _run_metrics(pair: _Pair, run: dict[str, Any]) -> Path | None:
+def _run_metrics(pair: PairSummary, run: dict[str, Any]) -> Path | None:
     """A run's metrics.jsonl: next to its result.json, or under DIR/runs/KEY when the
     protocol directory has moved since."""
     candidates = []
@@ -310,7 +310,7 @@ def drop(values: np.ndarray) -> float:
     return float(values.max() - values[-1])
 
 
-def _scores(pairs: dict[str, _Pair], pair: str, method: str, score: str) -> np.ndarray | str:
+def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -> np.ndarray | str:
     """Per-run ``score`` (final, early or drop) of ``method`` on ``pair`` as (runs,), or
     the reason there are none."""
     p = pairs.get(pair)
@@ -345,7 +345,7 @@ def _scores(pairs: dict[str, _Pair], pair: str, method: str, score: str) -> np.n
     return out
 
 
-def _seeds(pairs: dict[str, _Pair], pair: str, method: str) -> list[Hashable]:
+def run_seeds(pairs: dict[str, PairSummary], pair: str, method: str) -> list[Hashable]:
     """The PPO seed of each of ``method``'s runs on ``pair``, in ``_scores``' order: one
     level of the bootstrap (a shaped method runs each evaluation seed with every source
     policy). A run without a recorded seed is a seed of its own."""
@@ -359,7 +359,7 @@ _SHAPED_RUN = re.compile(r"^.+-beta[^/]+-init\d+-src(?P<source>\d+)$")
 (:func:`pved.experiments.protocol.transfer_run_name`, not imported: it pulls in torch)."""
 
 
-def _sources(pairs: dict[str, _Pair], pair: str, method: str) -> list[Hashable] | None:
+def run_sources(pairs: dict[str, PairSummary], pair: str, method: str) -> list[Hashable] | None:
     """The source policy of each of ``method``'s runs on ``pair`` (in ``_scores``' order),
     read from its run key ``PAIR/transfer/<run name>/seed<k>``; None where the method
     has none: plain PPO and the oracle (whose ``source_policy`` tag only numbers their
@@ -379,7 +379,7 @@ def _sources(pairs: dict[str, _Pair], pair: str, method: str) -> list[Hashable] 
 
 
 def _steps_to_ppo_final(
-    pairs: dict[str, _Pair], pair: str, methods: Sequence[str]
+    pairs: dict[str, PairSummary], pair: str, methods: Sequence[str]
 ) -> dict[str, int | None]:
     """From the summary: per method, the first evaluation step at which its mean curve
     reaches plain PPO's final mean (None: not reached); methods without the entry left out."""
@@ -395,7 +395,7 @@ def _steps_to_ppo_final(
 class _Judge:
     """The tests a claim's parts are made of; differences are cached (claims share them)."""
 
-    def __init__(self, pairs: dict[str, _Pair]) -> None:
+    def __init__(self, pairs: dict[str, PairSummary]) -> None:
         self.pairs = pairs
         self._diffs: dict[tuple[Any, ...], dict[str, Any] | str] = {}
 
@@ -423,10 +423,10 @@ class _Judge:
                     xb,
                     reps=REPS,
                     seed=SEED,
-                    seeds_a=_seeds(self.pairs, pair, a),
-                    seeds_b=_seeds(self.pairs, pair, b),
-                    sources_a=_sources(self.pairs, pair, a),
-                    sources_b=_sources(self.pairs, pair, b),
+                    seeds_a=run_seeds(self.pairs, pair, a),
+                    seeds_b=run_seeds(self.pairs, pair, b),
+                    sources_a=run_sources(self.pairs, pair, a),
+                    sources_b=run_sources(self.pairs, pair, b),
                     bars=bars,
                     group_bars=group_bars,
                     tol=tol,

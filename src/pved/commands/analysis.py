@@ -315,6 +315,32 @@ def add_compare(v: Verbs) -> None:
     p.set_defaults(func=_cmd_compare)
 
 
+def _cmd_scoreboard(args: argparse.Namespace) -> None:
+    from pved.analysis.scoreboard import write_scoreboard
+
+    print(write_scoreboard(args.method, args.dirs, args.out), end="")
+
+
+def add_scoreboard(v: Verbs) -> None:
+    sub = v.sub
+
+    p = sub.add_parser(
+        "scoreboard",
+        help="one method against PPO, PVED and the oracle on every pair, and the goal",
+        description="Per pair, the final score of ppo, pved, METHOD and the oracle with 95%% "
+        "CIs (two-level bootstrap over source policies and seeds, as `pved claims`), "
+        "METHOD - ppo and the steps METHOD takes to reach ppo's final; then whether "
+        "METHOD is ahead of ppo on >= 3 of the 4 pairs, behind on none, within half of "
+        "ppo's steps. A pair may come from several protocol DIRs of one budget (a "
+        "screen and the protocol whose stages it reused); METHOD=DIR takes only "
+        "METHOD's runs from DIR.",
+    )
+    p.add_argument("dirs", nargs="+", metavar="DIR", help="protocol outputs, or METHOD=DIR")
+    p.add_argument("--method", required=True, help="the transfer method judged (pved list)")
+    p.add_argument("--out", type=Path, help="also write scoreboard.json/md here (atomically)")
+    p.set_defaults(func=_cmd_scoreboard)
+
+
 def _cmd_analyze(args: argparse.Namespace) -> None:
     from pved.errors import PvedError
 
@@ -468,5 +494,6 @@ VERBS = (
     add_audit_likelihood,
     add_video,
     add_compare,
+    add_scoreboard,
     add_analyze,
 )
