@@ -173,3 +173,5 @@ def test_the_summary_reads_d_off_the_term_only_for_eq10s_form() -> None:
     assert _scale_cells(m, "pved")[0] == "-2 → -1 (D 20 → 10)"
     # a potential's payment is a difference of potentials, not −β·D
     assert _scale_cells(m, "pved-potential")[0] == "-2 → -1"
+    # align pays no reward term: its recorded 0 → 0 is not a reading of D
+    assert _scale_cells(m, "pved-align")[0] == "none (a loss on the mean action)"

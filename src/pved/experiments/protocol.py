@@ -905,7 +905,7 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
 
 def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, str]:
     """The summary table's two reward-scale cells of one method (``–`` without a shaping
-    term): the Eq. 10 term with its distance D (a KL in nats, or a point-code model's
+    term; ``none`` for the align form, which pays none): the Eq. 10 term with its distance D (a KL in nats, or a point-code model's
     squared distance; only for the ``eq10`` form, where D = term / −β) and the env's
     reward, each at the first and last rollout."""
     scale = method_summary.get("reward_scale")
@@ -913,6 +913,8 @@ def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, s
         return "–", "–"
     first, last = scale["shaping_first"], scale["shaping_last"]
     shaping = f"{first:.3g} → {last:.3g}"
+    if get_method(method).shaping_form == "align":  # its term is in the loss, not the reward
+        shaping = "none (a loss on the mean action)"
     beta = method_summary.get("beta")
     if isinstance(beta, int | float) and beta > 0 and get_method(method).shaping_form == "eq10":
         shaping += f" (D {-first / beta:,.4g} → {-last / beta:,.4g})"
