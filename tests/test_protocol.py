@@ -25,6 +25,7 @@ from pved.experiments.protocol import (
     PLAN_FILE,
     ProtocolPlan,
     copy_stage_runs,
+    fixed_selections,
     transfer_run_method,
     transfer_run_name,
 )
@@ -1043,10 +1044,55 @@ def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
     assert len(paper_runs) == 15 and len(wide_runs) == 81
 
 
+def test_a_selection_made_elsewhere_is_evaluated_without_tuning(tmp_path: Path) -> None:
+    screen = Path(__file__).resolve().parents[1] / "docs/protocol/reacher-quick-align"
+    fixed = fixed_selections(screen, ["reacher"], ["pved-align", "ppo"], "paper")
+    chosen = fixed["reacher"]["pved-align"]
+    assert (chosen["beta"], chosen["init"], chosen["budget"]) == (1.0, 0, "quick")
+    plan = ProtocolPlan(["reacher"], ["pved-align", "ppo"], "paper", tmp_path, fixed)
+    jobs = plan.expand({})
+    budget = get_budget("paper")
+    shaped = [j for j in jobs if "/transfer/pved-align" in j.key]
+    # no tuning run: the 15 evaluation runs at the screen's beta and init, at once
+    assert len(shaped) == budget.source_policies * len(budget.evaluation_seeds)
+    assert not set(budget.tuning_seeds) & {j.kwargs["seed"] for j in shaped}
+    assert all(j.kwargs["beta"] == 1.0 and j.tags["init"] == 0 for j in shaped)
+    assert _keys(plan.evaluation_jobs("reacher", "pved-align")) == _keys(shaped)
+    assert "reacher/model/pved/init0" in {j.key for j in jobs if j.end_product}
+    assert plan.selection["reacher"]["pved-align"]["selected_in"]["budget"] == "quick"
+    # the plan file records it, and a protocol reloaded from it plans the same runs
+    (tmp_path / PLAN_FILE).write_text(json.dumps(plan.describe()))
+    assert _keys(ProtocolPlan.load(tmp_path).expand({})) == _keys(jobs)
+    expected = plan.expected_steps()
+    tuned = ProtocolPlan(["reacher"], ["pved-align", "ppo"], "paper", tmp_path / "t")
+    assert expected < tuned.expected_steps()
+    # the paper protocol's own plan is unchanged without it
+    assert "selection_from" not in tuned.describe()
+
+
+def test_a_selection_that_saw_an_evaluation_seed_is_refused(tmp_path: Path) -> None:
+    screen = tmp_path / "screen"
+    screen.mkdir()
+    budget = dataclasses.asdict(get_budget("quick"))
+    budget["tuning_seeds"] = [get_budget("paper").evaluation_seeds[0]]
+    (screen / PLAN_FILE).write_text(json.dumps({"budget": budget}))
+    (screen / "selection.json").write_text(
+        json.dumps({"reacher": {"pved": {"beta": 0.1, "init": 0, "candidates": []}}})
+    )
+    with pytest.raises(PvedError, match="tuned on seeds .* that the paper budget evaluates on"):
+        fixed_selections(screen, ["reacher"], ["pved"], "paper")
+    budget["tuning_seeds"] = [2000]
+    (screen / PLAN_FILE).write_text(json.dumps({"budget": budget}))
+    with pytest.raises(PvedError, match="no finished selection of pved-align on reacher"):
+        fixed_selections(screen, ["reacher"], ["pved-align"], "paper")
+    assert fixed_selections(screen, ["reacher"], ["pved", "ppo"], "paper")["reacher"]["pved"]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["--pair", "nope"], "unknown pair"),
+        (["--pair", "reacher", "--selection-from", "nowhere"], "not a protocol directory"),
         (["--pair", "reacher", "--methods", "pved", "magic"], "unknown method"),
         (["--pair", "reacher", "--budget", "huge"], "unknown budget"),
         (["--pair", "reacher", "--stages-from", "nowhere"], "not a protocol directory"),

@@ -25,6 +25,7 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
         retries=args.retries,
         backend=args.backend,
         stages_from=args.stages_from,
+        selection_from=args.selection_from,
     )
     failed = len(summary["failed"]) + len(summary["blocked"])
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
@@ -70,6 +71,13 @@ def add_protocol(v: Verbs) -> None:
         "policies, pairs, models and banks (and transfer runs, where the steps per run are "
         "this plan's) are copied in first, in the order given; one whose config differs "
         "from this plan's is redone",
+    )
+    p.add_argument(
+        "--selection-from",
+        type=Path,
+        metavar="DIR",
+        help="a protocol directory (e.g. the pair's quick screen) whose beta and model "
+        "selections, made on its tuning seeds, are evaluated here without tuning again",
     )
     p.set_defaults(func=_cmd_protocol)
 

@@ -12,6 +12,12 @@ For each pair and each shaping method (a model name: ``pved``, a variant, ``gupt
 3. the kept model and beta are evaluated on every evaluation seed with every source
    policy (3 x 5 = 15 runs at the paper budget).
 
+Steps 1 and 2 may instead be taken from another protocol's finished selection
+(``--selection-from``, :func:`fixed_selections`): a method screened at the ``quick``
+budget is then evaluated at the ``paper`` budget without its 25 tuning runs there, with
+the β and model initialisation chosen on the screen's tuning seeds (never on evaluation
+seeds; the summary says where each selection was made).
+
 The reference methods (``ppo``: the target's restricted reward alone; ``oracle``: the
 source's full reward) have nothing to tune and no source; each evaluation seed s is run
 as seeds s, s+1, ..., one per source policy, so every method has the same number of
@@ -36,7 +42,7 @@ import math
 import re
 import shutil
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -171,7 +177,12 @@ class ProtocolPlan:
     """The job graph of the protocol for some pairs and methods (a runner ``Planner``)."""
 
     def __init__(
-        self, pairs: Sequence[str], methods: Sequence[str], budget: str, out: Path
+        self,
+        pairs: Sequence[str],
+        methods: Sequence[str],
+        budget: str,
+        out: Path,
+        fixed: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
     ) -> None:
         if not pairs:
             raise PvedError("protocol needs at least one pair")
@@ -190,6 +201,8 @@ class ProtocolPlan:
         self.runs = self.out / "runs"
         # what each selection chose, filled in by expand() as results arrive
         self.selection: dict[str, dict[str, Any]] = {}
+        # selections made elsewhere (fixed_selections): pair -> method -> beta, init, ...
+        self.fixed = {p: dict(m) for p, m in (fixed or {}).items()}
 
     # -- plan file -------------------------------------------------------------------
 
@@ -201,7 +214,7 @@ class ProtocolPlan:
             # newer than the plans of running protocols: left out where unused, so that
             # their protocol.json still matches and they resume
             del budget["steps_of"]
-        return {
+        plan = {
             "pairs": self.pairs,
             "methods": self.methods,
             "budget": budget,
@@ -210,6 +223,9 @@ class ProtocolPlan:
                 p: {m: list(self._grid(p, m)) for m in self.model_methods} for p in self.pairs
             },
         }
+        if self.fixed:  # only where used, so that the plans of earlier protocols still match
+            plan["selection_from"] = self.fixed
+        return plan
 
     @classmethod
     def load(cls, out: Path) -> ProtocolPlan:
@@ -217,7 +233,13 @@ class ProtocolPlan:
         path = Path(out) / PLAN_FILE
         try:
             plan = json.loads(path.read_text())
-            return cls(plan["pairs"], plan["methods"], plan["budget"]["name"], Path(out))
+            return cls(
+                plan["pairs"],
+                plan["methods"],
+                plan["budget"]["name"],
+                Path(out),
+                plan.get("selection_from"),
+            )
         except FileNotFoundError:
             raise PvedError(f"{out} is not a protocol directory (no {PLAN_FILE})") from None
         except (json.JSONDecodeError, KeyError, TypeError) as err:
@@ -433,6 +455,19 @@ class ProtocolPlan:
             bank_keys.append(bank_key)
 
         for method in self.model_methods:
+            fixed = self.fixed.get(pair, {}).get(method)
+            if fixed is not None:  # chosen in another protocol: no tuning runs here
+                self.selection.setdefault(pair, {})[method] = {
+                    "beta_grid": [],
+                    "candidates": list(fixed.get("candidates", [])),
+                    "beta": fixed["beta"],
+                    "init": fixed["init"],
+                    "selected_in": {k: fixed[k] for k in ("protocol", "budget", "tuning_seeds")},
+                }
+                model_key = add(self._model_job(pair, method, fixed["init"], (pairs_key,)))
+                assert model_key is not None
+                self._add_evaluation(pair, method, fixed["beta"], fixed["init"], bank_keys, add)
+                continue
             model0 = add(self._model_job(pair, method, 0, (pairs_key,)))
             assert model0 is not None
             grid = self._grid(pair, method)
@@ -490,23 +525,44 @@ class ProtocolPlan:
                 continue
             chosen_init = _best(init_candidates, preset.metric_resolution).init
             state["init"] = chosen_init
-            model_key = f"{pair}/model/{self._model(method)}/init{chosen_init}"
-            chosen = next(i for i, job in enumerate(jobs) if job.key == model_key)
-            jobs[chosen] = dataclasses.replace(jobs[chosen], end_product=True)
-            for k in range(b.source_policies):
-                for s in b.evaluation_seeds:
-                    add(
-                        self._transfer_job(
-                            pair,
-                            method,
-                            s,
-                            beta=chosen_beta,
-                            init=chosen_init,
-                            source=k,
-                            deps=(model_key, bank_keys[k]),
-                        )
-                    )
+            self._add_evaluation(pair, method, chosen_beta, chosen_init, bank_keys, add)
+        for i, job in enumerate(jobs):  # the chosen models are end products
+            if job.key in self._chosen_models(pair):
+                jobs[i] = dataclasses.replace(job, end_product=True)
         return jobs
+
+    def _chosen_models(self, pair: str) -> set[str]:
+        """The keys of the models the selections of ``pair`` kept."""
+        return {
+            f"{pair}/model/{self._model(method)}/init{state['init']}"
+            for method, state in self.selection.get(pair, {}).items()
+            if state.get("init") is not None
+        }
+
+    def _add_evaluation(
+        self,
+        pair: str,
+        method: str,
+        beta: float,
+        init: int,
+        bank_keys: Sequence[str],
+        add: Callable[[Job | None], str | None],
+    ) -> None:
+        """Every evaluation seed x source policy of ``method`` at the chosen β and init."""
+        model_key = f"{pair}/model/{self._model(method)}/init{init}"
+        for k in range(self.budget.source_policies):
+            for s in self.budget.evaluation_seeds:
+                add(
+                    self._transfer_job(
+                        pair,
+                        method,
+                        s,
+                        beta=beta,
+                        init=init,
+                        source=k,
+                        deps=(model_key, bank_keys[k]),
+                    )
+                )
 
     def evaluation_jobs(self, pair: str, method: str) -> list[Job]:
         """The evaluation runs of ``method`` on ``pair`` (after its selection is made;
@@ -538,7 +594,7 @@ class ProtocolPlan:
             per_eval = b.source_policies * len(b.evaluation_seeds)
             for method in self.methods:
                 runs = per_eval
-                if method not in REFERENCE_METHODS:
+                if method not in REFERENCE_METHODS and method not in self.fixed.get(pair, {}):
                     state = self.selection.get(pair, {}).get(method, {})
                     extended = len(state.get("beta_extended", ()))
                     tuning = len(self._grid(pair, method)) + extended + b.model_inits - 1
@@ -637,6 +693,55 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
     return copied
 
 
+def fixed_selections(
+    source: Path | str, pairs: Sequence[str], methods: Sequence[str], budget: str
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """The β and model initialisation that protocol directory ``source`` chose for each
+    shaped method of ``methods`` on each of ``pairs`` (its ``selection.json``), with where
+    and on which tuning seeds they were chosen, to be evaluated at ``budget`` without
+    tuning again (``--selection-from``).
+
+    Raises PvedError (one line) where ``source`` is not a protocol directory, has not
+    finished a selection asked for, or tuned on a seed that ``budget`` evaluates on (a
+    selection must never see an evaluation seed)."""
+    directory = Path(source).resolve()
+    plan = _plan_entry(directory, "budget")
+    if not isinstance(plan, dict) or not (directory / "selection.json").is_file():
+        raise PvedError(
+            f"--selection-from {source}: not a protocol directory with a selection.json"
+        )
+    try:
+        chosen = json.loads((directory / "selection.json").read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PvedError(f"{directory / 'selection.json'}: unreadable ({exc})") from None
+    tuning = [int(s) for s in plan.get("tuning_seeds", [])]
+    overlap = sorted(set(tuning) & set(get_budget(budget).evaluation_seeds))
+    if overlap:
+        raise PvedError(
+            f"--selection-from {source}: it tuned on seeds {overlap} that the {budget} "
+            "budget evaluates on"
+        )
+    fixed: dict[str, dict[str, dict[str, Any]]] = {}
+    for pair in pairs:
+        for method in methods:
+            if not get_method(method).shaped:
+                continue
+            state = chosen.get(pair, {}).get(method) if isinstance(chosen, dict) else None
+            if not isinstance(state, dict) or state.get("init") is None:
+                raise PvedError(
+                    f"--selection-from {source}: no finished selection of {method} on {pair}"
+                )
+            fixed.setdefault(pair, {})[method] = {
+                "beta": float(state["beta"]),
+                "init": int(state["init"]),
+                "protocol": str(directory),
+                "budget": str(plan.get("name")),
+                "tuning_seeds": tuning,
+                "candidates": state.get("candidates", []),
+            }
+    return fixed
+
+
 def run_protocol(
     pairs: Sequence[str],
     *,
@@ -649,6 +754,7 @@ def run_protocol(
     live: bool = True,
     backend: str = "auto",
     stages_from: Path | str | Sequence[Path | str] | None = None,
+    selection_from: Path | str | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
 
@@ -657,7 +763,9 @@ def run_protocol(
     :func:`pved.experiments.runner.run_jobs`. ``stages_from``: protocol directories (one,
     or several in order) whose finished policies, pairs, models and banks are copied in
     first (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
-    ``paper`` one; a run already copied from an earlier one is kept."""
+    ``paper`` one; a run already copied from an earlier one is kept. ``selection_from``:
+    a protocol directory whose β and model selections are used instead of tuning here
+    (:func:`fixed_selections`)."""
     sources: list[Path | str] = (
         []
         if stages_from is None
@@ -665,7 +773,11 @@ def run_protocol(
         if isinstance(stages_from, str | Path)
         else list(stages_from)
     )
-    plan = ProtocolPlan(pairs, methods, budget, Path(out))
+    ProtocolPlan(pairs, methods, budget, Path(out))  # names checked before the selection
+    fixed = (
+        None if selection_from is None else fixed_selections(selection_from, pairs, methods, budget)
+    )
+    plan = ProtocolPlan(pairs, methods, budget, Path(out), fixed)
     resolve_backend(backend, address)  # before anything is written
     if workers is not None:
         check_int("--workers", workers, low=1)
@@ -905,9 +1017,10 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
 
 def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, str]:
     """The summary table's two reward-scale cells of one method (``–`` without a shaping
-    term; ``none`` for the align form, which pays none): the Eq. 10 term with its distance D (a KL in nats, or a point-code model's
-    squared distance; only for the ``eq10`` form, where D = term / −β) and the env's
-    reward, each at the first and last rollout."""
+    term; ``none`` for the align form, which pays none): the Eq. 10 term with its
+    distance D (a KL in nats, or a point-code model's squared distance; only for the
+    ``eq10`` form, where D = term / −β) and the env's reward, each at the first and last
+    rollout."""
     scale = method_summary.get("reward_scale")
     if not scale:
         return "–", "–"
@@ -969,6 +1082,13 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
         for method, state in summary["selection"].get(pair, {}).items():
             lines.append(f"Selection of {method} (mean {metric} over the tuning seeds):")
             lines.append("")
+            where = state.get("selected_in")
+            if where:
+                lines.append(
+                    f"- made in {where['protocol']} ({where['budget']} budget, tuning seeds "
+                    f"{where['tuning_seeds']}; `--selection-from`): beta {state['beta']:g}, "
+                    f"init {state['init']}"
+                )
             for cand in state.get("candidates", []):
                 lines.append(
                     f"- beta {cand['beta']:g}, init {cand['init']}: "
