@@ -19,7 +19,7 @@ from pved import __version__
 from pved.analysis.curves import read_eval_points
 from pved.errors import PvedError
 from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
-from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.experiments.stages import transfer
 from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import RESTORED_FROM, Run, atomic_write_json
@@ -28,7 +28,7 @@ from pved.runs import RESTORED_FROM, Run, atomic_write_json
 def _protocol_with_two_runs(out: Path) -> Path:
     out = reacher_smoke_protocol(out)
     plan = ProtocolPlan.load(out)
-    jobs = {j.key: j for j in plan.expand(_finished_results(plan))}
+    jobs = {j.key: j for j in plan.expand(finished_results(plan))}
     tuning = next(k for k in jobs if "/transfer/pved-beta" in k)
     baseline = next(k for k in jobs if "/transfer/ppo/" in k)
     for key in (tuning, baseline):
@@ -45,7 +45,7 @@ def _transfer_kwargs(out: Path) -> dict[str, dict[str, object]]:
     plan = ProtocolPlan.load(out)
     return {
         j.key: {k: v for k, v in j.kwargs.items() if k != "progress"}
-        for j in plan.expand(_finished_results(plan))
+        for j in plan.expand(finished_results(plan))
         if j.fn is transfer
     }
 
@@ -59,7 +59,7 @@ def _restore_by_cli(
                           "--protocol", protocol)  # fmt: skip
     assert code == 0, err
     assert out.strip().endswith(counts)
-    return _finished_results(ProtocolPlan.load(protocol))
+    return finished_results(ProtocolPlan.load(protocol))
 
 
 @pytest.mark.slow
@@ -97,7 +97,7 @@ def test_an_archive_keeps_what_later_stages_read_and_restores_as_done(
     # another machine: restored, the three runs are finished; the pairs and bank are not
     elsewhere = tmp_path / "elsewhere"
     restored = _restore_by_cli(capsys, archive, elsewhere, "3 restored, 0 exists")
-    original = _finished_results(ProtocolPlan.load(protocol))
+    original = finished_results(ProtocolPlan.load(protocol))
     assert set(restored) == set(original) - {"reacher/pairs", "reacher/bank/src0"}
     plan = ProtocolPlan.load(elsewhere)
     jobs = {j.key: j for j in plan.expand(restored)}
@@ -139,7 +139,7 @@ def test_a_summary_restores_the_transfer_runs_and_the_protocol_remakes_the_rest(
     shutil.rmtree(lost)
 
     restored = _restore_by_cli(capsys, summary, lost, "2 restored, 0 exists")
-    original = _finished_results(ProtocolPlan.load(protocol))
+    original = finished_results(ProtocolPlan.load(protocol))
     assert set(restored) == {key for key in original if "/transfer/" in key}
     for rel in runs:  # the learning curves read back as they were made
         made = read_eval_points(made_runs / rel / "metrics.jsonl", "eval/return_mean")

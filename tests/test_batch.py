@@ -26,7 +26,7 @@ from pved.experiments.batch import (
     import_batch,
     release_batch,
 )
-from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.experiments.stages import transfer
 from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import Run, atomic_write_json, claim_holder, write_claim
@@ -34,7 +34,7 @@ from pved.runs import Run, atomic_write_json, claim_holder, write_claim
 
 def _jobs_by_key(out: Path) -> dict[str, dict[str, object]]:
     plan = ProtocolPlan.load(out)
-    return {j.key: dict(j.kwargs) for j in plan.expand(_finished_results(plan))}
+    return {j.key: dict(j.kwargs) for j in plan.expand(finished_results(plan))}
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +105,7 @@ def test_runs_made_in_a_batch_are_the_protocols_own(
         result = json.loads((spec.run_dir / "result.json").read_text())
         assert Path(result["policy"]) == spec.run_dir / "policy.pt"
         assert transfer(**jobs[key]) == result  # returns at once: nothing retrained
-    assert set(keys) <= set(_finished_results(ProtocolPlan.load(protocol)))
+    assert set(keys) <= set(finished_results(ProtocolPlan.load(protocol)))
 
     # a second import keeps what is here, and the next export leaves the imported out
     results = sorted((protocol / "runs/reacher/transfer").glob("*/seed*/result.json"))
@@ -269,7 +269,7 @@ def test_exported_runs_are_claimed_until_sent_back_or_released(
 ) -> None:
     plan = ProtocolPlan.load(protocol)
     run_dirs = {
-        j.key: j.run_dir for j in plan.expand(_finished_results(plan)) if j.run_dir is not None
+        j.key: j.run_dir for j in plan.expand(finished_results(plan)) if j.run_dir is not None
     }
     first = export_batch(protocol, tmp_path / "b1", limit=2)
     holder = str((tmp_path / "b1").resolve())

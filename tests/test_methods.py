@@ -12,7 +12,7 @@ import pved  # noqa: F401  (registers the env ids)
 from helpers import assert_ppo_resumes_exactly, placeholder_shaping_inputs, push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
-from pved.experiments.protocol import ProtocolPlan
+from pved.experiments.protocol_plan import ProtocolPlan
 from pved.experiments.stages import transfer_spec
 from pved.models import PVED
 from pved.rl.ppo import PPOConfig

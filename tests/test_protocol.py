@@ -20,11 +20,10 @@ import torch
 from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.config import get_budget
 from pved.errors import PvedError
-from pved.experiments.protocol import (
-    COPYABLE_STAGES,
+from pved.experiments.protocol import COPYABLE_STAGES, copy_stage_runs
+from pved.experiments.protocol_plan import (
     PLAN_FILE,
     ProtocolPlan,
-    copy_stage_runs,
     fixed_selections,
     transfer_run_method,
     transfer_run_name,
@@ -115,7 +114,7 @@ def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> Non
 
 
 def test_scores_within_the_metric_resolution_tie_and_go_to_the_return() -> None:
-    from pved.experiments.protocol import Candidate, _best
+    from pved.experiments.protocol_plan import Candidate, _best
 
     # walker-hopper: a Hopper that falls at once (x -0.02 m, return 5) against one that
     # stands (x -0.13 m, return 1000), then one that walks (x 9.0 m)
@@ -1079,7 +1078,7 @@ def test_a_selection_that_saw_an_evaluation_seed_is_refused(tmp_path: Path) -> N
     (screen / "selection.json").write_text(
         json.dumps({"reacher": {"pved": {"beta": 0.1, "init": 0, "candidates": []}}})
     )
-    with pytest.raises(PvedError, match="tuned on seeds .* that the paper budget evaluates on"):
+    with pytest.raises(PvedError, match=r"tuned on seeds .* that the paper budget evaluates on"):
         fixed_selections(screen, ["reacher"], ["pved"], "paper")
     budget["tuning_seeds"] = [2000]
     (screen / PLAN_FILE).write_text(json.dumps({"budget": budget}))
@@ -1294,7 +1293,7 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     # Restored or copied runs cannot be checked by their config hash (their model and bank
     # are gone), so a shaped run is taken only where its config says Eq. 10 was computed
     # as it is now (bank time base, mean action, unclipped scaled reward): else it is made again.
-    from pved.experiments.protocol import _finished_results
+    from pved.experiments.protocol_plan import finished_results
     from pved.experiments.runner import read_job_result
     from pved.experiments.transfer_spec import eq10_config
 
@@ -1311,11 +1310,11 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
         (job.run_dir / "result.json").write_text(json.dumps(_fake(0.5)))
     assert read_job_result(shaped.run_dir, shaped.required_config) is None
     assert read_job_result(ppo.run_dir, ppo.required_config) == _fake(0.5)
-    finished = _finished_results(plan)
+    finished = finished_results(plan)
     assert ppo.key in finished and shaped.key not in finished
     # the same run with today's entries counts
     assert shaped.run_dir is not None
     new_config = {**old_config, **eq10_config("reacher")}
     (shaped.run_dir / "config.json").write_text(json.dumps({"config": new_config}))
     assert read_job_result(shaped.run_dir, shaped.required_config) == _fake(0.5)
-    assert shaped.key in _finished_results(plan)
+    assert shaped.key in finished_results(plan)

@@ -53,7 +53,7 @@ import numpy as np
 from pved.envs.arms import HOLE_CENTER_XY, HOLE_RANGE, TABLE_TOP_Z
 from pved.envs.registry import make_batched
 from pved.errors import PvedError
-from pved.experiments.protocol import transfer_run_method
+from pved.experiments.protocol_plan import transfer_run_method
 from pved.models.registry import load_model
 from pved.rl.policy import load_policy
 from pved.runs import atomic_write_json, run_file, run_path

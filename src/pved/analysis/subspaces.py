@@ -35,7 +35,7 @@ from pved.analysis.claims import load_summary
 from pved.analysis.pair_report import build_pair_report
 from pved.analysis.transferred import analyze_subspaces, bound
 from pved.errors import PvedError
-from pved.experiments.protocol import ProtocolPlan, _finished_results, indexed_policy
+from pved.experiments.protocol_plan import ProtocolPlan, finished_results, indexed_policy
 from pved.experiments.runner import Job
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 from pved.spec import get_preset
@@ -72,7 +72,7 @@ def remake_policy(protocol: Path, key: str, metric: str, recorded: float) -> Non
     """Make the finished run ``key`` of ``protocol`` again, for the policy its restored
     record lacks (module docstring); prints its final ``metric`` beside ``recorded``."""
     plan = ProtocolPlan.load(protocol)
-    jobs = {job.key: job for job in plan.expand(_finished_results(plan))}
+    jobs = {job.key: job for job in plan.expand(finished_results(plan))}
     job = jobs.get(key)
     if job is None or job.run_dir is None:
         raise PvedError(f"{protocol}: {key} is not a run of its plan")

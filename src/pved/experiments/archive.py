@@ -48,7 +48,7 @@ from typing import Any
 
 from pved.checks import check_writable
 from pved.errors import PvedError
-from pved.experiments.protocol import PLAN_FILE, ProtocolPlan, _finished_results
+from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.experiments.stages import train_model, train_policy, transfer
 from pved.runs import RESTORED_FROM, atomic_write_bytes, atomic_write_json, repoint_result
 
@@ -116,7 +116,7 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
     after more runs finish adds those runs and leaves the rest untouched."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     archive = check_writable("--archive", archive_dir)
-    results = _finished_results(plan)
+    results = finished_results(plan)
     counts = {"written": 0, "unchanged": 0}
     archive.mkdir(parents=True, exist_ok=True)
     _write_if_changed(archive / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
@@ -145,7 +145,7 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
     runs that finished since as added lines."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     check_writable("--archive", summary_dir)
-    results = _finished_results(plan)
+    results = finished_results(plan)
     runs: dict[str, Any] = {}
     for job in plan.expand(results):
         if job.fn is not transfer or job.key not in results or job.run_dir is None:

@@ -44,7 +44,7 @@ from typing import Any
 from pved import __version__
 from pved.checks import check_int, check_number, check_writable
 from pved.errors import PvedError
-from pved.experiments.protocol import ProtocolPlan, _finished_results
+from pved.experiments.protocol_plan import ProtocolPlan, finished_results
 from pved.experiments.runner import WORKER_ENV, _environment, _one_line
 from pved.experiments.stages import transfer
 from pved.experiments.transfer_spec import transfer_spec
@@ -162,7 +162,7 @@ def export_batch(
     sources: dict[str, Path] = {}  # an input's relative path -> its file here
     plans = [ProtocolPlan.load(Path(d)) for d in dirs]
     for plan in plans:
-        results = _finished_results(plan)
+        results = finished_results(plan)
         ready = [
             job
             for job in plan.expand(results)
@@ -258,7 +258,7 @@ def release_batch(protocol_dir: Path | str, batch_dir: Path | str | None = None)
     holder = None if batch_dir is None else _holder(Path(batch_dir))
     return [
         job.key
-        for job in plan.expand(_finished_results(plan))
+        for job in plan.expand(finished_results(plan))
         if job.fn is transfer and job.run_dir is not None and release_claim(job.run_dir, holder)
     ]
 
@@ -433,7 +433,7 @@ def import_batch(
     protocol does not have: another protocol's, from a batch they share)."""
     plan = ProtocolPlan.load(Path(protocol_dir))
     check_writable("--protocol", plan.runs)
-    results = _finished_results(plan)
+    results = finished_results(plan)
     expected = {
         _relative(job.run_dir, plan.runs, "run"): job
         for job in plan.expand(results)
