@@ -212,3 +212,28 @@ def test_pved_align_is_a_method_with_its_own_config(
         LatentShapingWrapper(gymnasium.make(TARGET_PUSH), align, MATCH_KEYS, lambda o: o)
     with pytest.raises(PvedError, match="align form has no shaping start"):
         LatentShaping(model_, bank_, 0.1, env.robot_state_indices, form="align", start=10)
+
+
+def test_pved_align_short_fades_its_guide_by_a_quarter_of_the_run(
+    inputs: tuple[SourceBank, PVED], tmp_path: Path
+) -> None:
+    runs = tmp_path / "runs"
+    placeholder_shaping_inputs(runs)
+    short = transfer_spec("reacher", "pved-align-short", runs_root=runs)
+    assert short.config["align_anneal"] == short.align_anneal == 0.25
+    # pved-align's config, and so its finished runs' hashes, are as they were
+    assert transfer_spec("reacher", "pved-align", runs_root=runs).align_anneal == ALIGN_ANNEAL
+    bank_, model_ = inputs
+    env = make_batched(TARGET_PUSH, 2)
+    shaping = LatentShaping(
+        model_, bank_, 0.4, env.robot_state_indices, form="align", align_anneal=0.25
+    )
+    guide = ShapedBatchedEnv(env, shaping, MATCH_KEYS).action_guide
+    assert guide is not None
+    assert guide.weight(0.0) == 0.4 and guide.weight(0.125) == pytest.approx(0.2)
+    assert guide.weight(0.25) == 0.0 and guide.weight(0.3) == 0.0
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(PvedError, match="align_anneal"):
+            LatentShaping(
+                model_, bank_, 0.4, env.robot_state_indices, form="align", align_anneal=bad
+            )

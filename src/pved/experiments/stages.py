@@ -680,6 +680,7 @@ def transfer(
             ),
             action=spec.shaping_action,
             gamma=ppo.gamma,
+            align_anneal=spec.align_anneal,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
     eval_fn = _eval_fn(

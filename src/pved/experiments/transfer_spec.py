@@ -37,6 +37,7 @@ class TransferSpec:
         train_env_kwargs: env options of the training env (the oracle's full reward).
         shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
         beta: the shaping weight (Eq. 10).
+        align_anneal: the align form's anneal (:class:`pved.transfer.shaping.AlignGuide`).
     """
 
     config: dict[str, Any]
@@ -51,6 +52,7 @@ class TransferSpec:
     shaping_start: int
     shaping_form: str
     shaping_action: str
+    align_anneal: float = ALIGN_ANNEAL
 
 
 def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
@@ -88,6 +90,7 @@ def transfer_spec(
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     recipe = get_method(method)  # an unknown method name fails here, before any file check
     shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
+    align_anneal = ALIGN_ANNEAL if recipe.align_anneal is None else recipe.align_anneal
     check_shaping_form(shaping_form)
     check_shaping_action(shaping_action)
     check_int("--shaping-start", shaping_start, low=0)
@@ -168,7 +171,7 @@ def transfer_spec(
         if shaping_form != "eq10":
             config["shaping_form"] = shaping_form
         if shaping_form == "align":
-            config["align_anneal"] = ALIGN_ANNEAL
+            config["align_anneal"] = align_anneal
     if shaping_start and shaping_inputs is None:
         raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
     if shaping_form != "eq10" and shaping_inputs is None:
@@ -186,4 +189,5 @@ def transfer_spec(
         shaping_start=shaping_start,
         shaping_form=shaping_form,
         shaping_action=shaping_action,
+        align_anneal=align_anneal,
     )

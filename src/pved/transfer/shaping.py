@@ -54,8 +54,9 @@ from pved.transfer.source_cache import (
 SHAPING_FORMS = ("eq10", "log1p", "potential", "align")
 
 #: The share of a run's env steps over which the ``"align"`` form's weight falls from β to
-#: 0 (linearly): the second half of the run is plain PPO, which can undo what a wrong
-#: guide taught (set before any run of the form).
+#: 0 (linearly) unless a method sets its own (``Method.align_anneal``): the second half of
+#: the run is plain PPO, which can undo what a wrong guide taught (set before any run of
+#: the form).
 ALIGN_ANNEAL = 0.5
 
 
@@ -119,6 +120,8 @@ class LatentShaping:
             action, given to the wrapper before each step; the default) or ``"taken"``
             (the action the env is stepped with).
         gamma: the learner's discount γ; only the ``"potential"`` form reads it.
+        align_anneal: the share of the run over which the ``"align"`` form's weight falls
+            to 0 (:class:`AlignGuide`); only that form reads it.
     """
 
     def __init__(
@@ -132,6 +135,7 @@ class LatentShaping:
         time_scale: float = 1.0,
         action: str = "mean",
         gamma: float = 0.99,
+        align_anneal: float = ALIGN_ANNEAL,
     ) -> None:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
@@ -152,6 +156,9 @@ class LatentShaping:
         self.time_scale = float(time_scale)
         self.action = action
         self.gamma = check_number("gamma", gamma, low=0.0, high=1.0, low_open=True)
+        self.align_anneal = check_number(
+            "align_anneal", align_anneal, low=0.0, high=1.0, low_open=True
+        )
         # rows shaped so far: the clock ``start`` is read against (saved with the env)
         self.steps = 0
         # q_φS of every bank row, encoded at the first shaped step (source_cache.py)
@@ -247,12 +254,13 @@ class AlignGuide:
     form pays no reward term; it adds to PPO's loss, at every minibatch row,
 
         w · log(1 + D(q_φS(c | x_S,t), q_φT(c | s_T,t, clip(μ_θ(s_T,t))))),
-        w = β · max(0, 1 − progress / ALIGN_ANNEAL),
+        w = β · max(0, 1 − progress / anneal),
 
     and passes its gradient with respect to μ_θ through the (frozen) target encoder. The
     log bounds the gradient where D is thousands of nats (jaco-fetch) and keeps it D's
-    own where D is small; the weight falls to 0 by :data:`ALIGN_ANNEAL` of the run, so
-    the policy the run ends with answers to the task reward alone.
+    own where D is small; the weight falls to 0 by ``anneal`` of the run
+    (``LatentShaping.align_anneal``, :data:`ALIGN_ANNEAL` unless the method sets its
+    own), so the policy the run ends with answers to the task reward alone.
 
     A context row is the target's robot state at the step, then the source's posterior
     mean (K) and, for a stochastic model, its log-variance (K).
@@ -281,8 +289,8 @@ class AlignGuide:
         return np.concatenate(parts, 1)
 
     def weight(self, progress: float) -> float:
-        """β · max(0, 1 − progress / ALIGN_ANNEAL)."""
-        return self.shaping.beta * max(0.0, 1.0 - float(progress) / ALIGN_ANNEAL)
+        """β · max(0, 1 − progress / anneal)."""
+        return self.shaping.beta * max(0.0, 1.0 - float(progress) / self.shaping.align_anneal)
 
     def loss_grad(
         self, context: np.ndarray, mean: np.ndarray, progress: float
