@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint docs system-deps clean reproduce publish subspaces archive restore
+.PHONY: demo test lint docs system-deps clean reproduce publish publish-screen subspaces archive restore
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -88,6 +88,20 @@ publish:
 		cp reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json \
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
+
+# A screen of a method beyond the paper (a protocol of that method and ppo, in
+# reports/<SCREEN>/): its summaries, curves and runs' record into docs/protocol/<SCREEN>/,
+# and the method against ppo there (pved scoreboard), e.g.
+# make publish-screen SCREEN=humanoid-ant-quick-align METHOD=pved-align
+publish-screen: $(STAMP)
+	test -n "$(SCREEN)" -a -n "$(METHOD)" -a -f reports/$(SCREEN)/summary.json || \
+		{ echo "publish-screen needs SCREEN=<finished reports/ dir> METHOD=<method>" >&2; exit 2; }
+	mkdir -p docs/protocol/$(SCREEN)
+	cp reports/$(SCREEN)/protocol.json reports/$(SCREEN)/selection.json \
+		reports/$(SCREEN)/summary.json reports/$(SCREEN)/summary.md \
+		reports/$(SCREEN)/curves-*.png docs/protocol/$(SCREEN)/
+	$(VENV)/bin/pved archive summary --protocol reports/$(SCREEN) --archive docs/protocol/$(SCREEN)
+	$(VENV)/bin/pved scoreboard --method $(METHOD) docs/protocol/$(SCREEN) --out docs/protocol/$(SCREEN)
 
 test: $(STAMP) lint docs
 	$(PY) -m pytest -q
