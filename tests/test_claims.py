@@ -12,24 +12,26 @@ import pytest
 
 from helpers import run_cli
 from pved.analysis.claims import (
-    FOUR,
-    HOLDS,
-    NOT_HOLD,
-    UNDECIDED,
     claims_markdown,
     combine,
-    drop,
-    early_score,
-    eval_curve,
     family_wise,
     holm,
     holm_adjusted,
     judge_claims,
-    not_beat_verdict,
-    similar_verdict,
     write_claims,
 )
 from pved.analysis.curves import bootstrap_difference
+from pved.analysis.judge import (
+    FOUR,
+    HOLDS,
+    NOT_HOLD,
+    UNDECIDED,
+    drop,
+    early_score,
+    eval_curve,
+    not_beat_verdict,
+    similar_verdict,
+)
 from pved.errors import PvedError
 
 STEPS = [0, 1000, 2000, 3000, 4000]  # early score: the points at steps <= 1000

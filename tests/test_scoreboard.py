@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import run_cli
-from pved.analysis.claims import FOUR
+from pved.analysis.judge import FOUR
 from pved.analysis.scoreboard import (
     AHEAD,
     BEHIND,

@@ -3,7 +3,7 @@ methods of a protocol, for runs made outside one: an option of ``pved transfer``
 ``--shaping-form log1p``) against the protocol's own runs of the same pair, or any two
 sets of seeds a researcher has trained.
 
-Per run, as in :mod:`pved.analysis.claims`: the final score (the pair's metric in
+Per run, as in :mod:`pved.analysis.judge`: the final score (the pair's metric in
 ``result.json``, the run's final evaluation), the early score (the mean of its evaluation
 points at steps <= 25% of its last) and the drop (its best evaluation point minus its
 last). For each, the difference of the two groups' means, A − B, with its 95% percentile
@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.claims import drop, early_score, eval_curve
 from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
+from pved.analysis.judge import drop, early_score, eval_curve
 from pved.errors import PvedError
 from pved.runs import read_json
 from pved.spec import get_preset

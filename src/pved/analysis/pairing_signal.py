@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pved.analysis.claims import load_summary
+from pved.analysis.judge import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
 from pved.experiments.inputs import default_dataset_path, default_model_path

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.claims import (
+from pved.analysis.curves import bootstrap_difference
+from pved.analysis.judge import (
     FOUR,
     REPS,
     SEED,
@@ -40,7 +41,6 @@ from pved.analysis.claims import (
     run_seeds,
     run_sources,
 )
-from pved.analysis.curves import bootstrap_difference
 from pved.errors import PvedError
 
 AHEAD_NEEDED = 3

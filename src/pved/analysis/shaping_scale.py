@@ -62,8 +62,8 @@ import numpy as np
 import torch
 from scipy.stats import spearmanr
 
-from pved.analysis.claims import load_summary
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
+from pved.analysis.judge import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
 from pved.experiments.inputs import default_dataset_path, default_model_path

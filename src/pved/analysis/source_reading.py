@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 from scipy.stats import mannwhitneyu
 
-from pved.analysis.claims import load_summary
 from pved.analysis.curves import reward_scale
+from pved.analysis.judge import load_summary
 from pved.errors import PvedError
 from pved.runs import atomic_write_json
 

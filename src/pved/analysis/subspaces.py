@@ -31,7 +31,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from pved.analysis.claims import load_summary
+from pved.analysis.judge import load_summary
 from pved.analysis.pair_report import build_pair_report
 from pved.analysis.transferred import analyze_subspaces, bound
 from pved.errors import PvedError
