@@ -4,6 +4,7 @@ audit of a fresh transfer policy's rollout."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +89,71 @@ def test_likelihood_reading_fits_both_variances_on_the_same_pairs(tmp_path: Path
         assert (tmp_path / "reacher" / "likelihood" / variance / "seed0" / "result.json").exists()
     # the two fits differ only in the decoder variance, so their D differ
     assert got["learned"]["matched"] != got["unit"]["matched"]
+
+
+@pytest.fixture
+def one_thread() -> Iterator[None]:
+    """One torch thread, as every pved stage runs (800 small steps a search: on two
+    threads of a busy machine they take 30 times as long)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.usefixtures("one_thread")
+def test_the_search_over_actions_finds_an_action_whose_code_is_the_source_s() -> None:
+    from pved.analysis.shaping_audit import min_over_actions
+
+    dims = ModelDims(10, 12, 6, 8)
+    torch.manual_seed(0)
+    model = PVED(dims, PVEDConfig())
+    model.fit_standardization(torch.randn(512, 10), torch.randn(512, 12))
+    rng = np.random.default_rng(0)
+    state = rng.normal(size=(64, 8)).astype(np.float32)
+    target_action = rng.uniform(-0.8, 0.8, (64, 4)).astype(np.float32)
+    with torch.no_grad():  # the source's code is the target's own at a known action: D 0 there
+        source = model.shared_target(torch.as_tensor(np.concatenate([state, target_action], 1)))
+    first = -target_action  # start far from it
+    low, high = -np.ones(4, np.float32), np.ones(4, np.float32)
+    with torch.no_grad():
+        at_first = model.shaping_between(
+            source, model.shared_target(torch.as_tensor(np.concatenate([state, first], 1)))
+        ).numpy()
+    least = min_over_actions(model, source, state, first, low, high, seed=1)
+    assert least.shape == (64,) and np.all(least <= at_first + 1e-6)
+    assert np.median(least) < 0.05 * np.median(at_first)  # the search gets (near) to 0
+    # an action outside the box is not searched: with the optimum outside, D stays above 0
+    outside = min_over_actions(model, source, state, first, low, low + 1e-3, seed=1)
+    assert np.median(outside) > np.median(least)
+
+
+@pytest.mark.usefixtures("one_thread")
+def test_the_audit_reads_how_much_of_d_the_action_can_remove() -> None:
+    source = make_batched("pved/Reacher3Push-v0", 4)
+    bank = build_source_bank(
+        source, load_policy(pretrained_policy_path("Reacher3", "Push")), 8, ("button_start",)
+    )
+    target = make_batched("pved/Reacher4Push-v0", 1)
+    n_t = len(target.robot_state_indices)
+    dims = ModelDims(bank.dim, n_t + 4, len(bank.header["robot_state_indices"]), n_t)
+    torch.manual_seed(0)
+    model = PVED(dims, PVEDConfig())
+    model.fit_standardization(
+        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
+    )
+    ppo = PPOConfig(num_envs=4, seed=3)
+    terms = rollout_terms(
+        "pved/Reacher4Push-v0", model, bank, ("button_start",), ppo, 200, min_rows=32
+    )
+    assert terms["d_min"].shape == terms["d_min_rows"].shape == (32,)
+    assert set(terms["d_min_rows"]) <= set(terms["d_mean"].reshape(-1))
+    assert np.all(terms["d_min"] <= terms["d_min_rows"] + 1e-6)
+    removable = audit(terms, (1.0,), 0.99, 10.0)["removable_by_action"]
+    assert removable["rows"] == 32 and 0.0 <= removable["share_median"] <= 1.0
+    assert "removable_by_action" not in audit(
+        rollout_terms("pved/Reacher4Push-v0", model, bank, ("button_start",), ppo, 40),
+        (1.0,),
+        0.99,
+        10.0,
+    )

@@ -13,10 +13,17 @@ and source bank, this module measures, on the same target states:
   on the env part alone (σ still of the shaped return, the term never clipped,
   ``pved.rl.ppo``), plain PPO's share, and, for the alternative of a σ of the env return
   alone, the share of steps where the term alone would exceed the clip;
-- **the term's size**: β·D against |r_env| per step.
+- **the term's size**: β·D against |r_env| per step;
+- **how much of D the action can remove**: on a sample of the rollout's rows, D
+  minimised over the target action in its box (:func:`min_over_actions`), the target's
+  state and the source's code held: what is left is the part of D no action at that
+  state can remove (the state, or the moment in the source's episode, does not match),
+  the part a loss on the action (``pved-align``) cannot reach.
 
-The rollout is a fresh policy's: a reading of where training starts, where the term is
-largest, not of a whole run (a run's ``rollout/clipped_share`` logs the clip over it).
+The rollout is a fresh policy's by default: a reading of where training starts, where the
+term is largest, not of a whole run (a run's ``rollout/clipped_share`` logs the clip over
+it). ``--policy`` rolls out a trained policy instead (its own observation normaliser,
+frozen), to read the same at the states a run ends in.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import torch
 from pved.checks import check_int, check_number, check_seed, check_writable, named_options
 from pved.envs import make_batched
 from pved.errors import PvedError
-from pved.models.base import SharedSpaceModel
+from pved.models.base import SharedRep, SharedSpaceModel
 from pved.rl.networks import ActorCritic, ObsNormalizer, RunningMeanStd
 from pved.rl.policy import Policy
 from pved.rl.ppo import PPOConfig
@@ -41,6 +48,11 @@ from pved.transfer.shaping import LatentShaping, task_params
 from pved.transfer.source_bank import SourceBank
 
 QUANTILES = (0.5, 0.95)
+MIN_STARTS = 4
+"""Starts of the search over actions: the policy's mean action and uniform random ones."""
+MIN_ITERS = 200
+"""Projected Adam steps per start (lr :data:`MIN_LR`) on log(1 + D)."""
+MIN_LR = 0.05
 
 
 def distance_stats(distance: np.ndarray) -> dict[str, float]:
@@ -77,6 +89,48 @@ def initial_policy(obs_dim: int, act_dim: int, low: Any, high: Any, ppo: PPOConf
     return Policy(net, norm, np.asarray(low), np.asarray(high), {"seed": ppo.seed})
 
 
+def min_over_actions(
+    model: SharedSpaceModel,
+    source: SharedRep,
+    state: np.ndarray,
+    first: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    seed: int = 0,
+) -> np.ndarray:
+    """The least D of Eq. 10 found over target actions in the box [low, high], the target's
+    robot state (R, S) and the source's code (``source``, (R, K)) held: projected Adam on
+    log(1 + D) from ``first`` (R, A) (the policy's mean action) and from
+    :data:`MIN_STARTS` − 1 uniform random actions (seeded), :data:`MIN_ITERS` steps each;
+    the least D each row reached, counting ``first`` itself. (R,). An upper bound on the
+    true minimum (a local search), so the share of D it shows removable is a lower
+    bound."""
+    lo = torch.as_tensor(np.asarray(low, dtype=np.float32))
+    hi = torch.as_tensor(np.asarray(high, dtype=np.float32))
+    s = torch.as_tensor(np.asarray(state, dtype=np.float32))
+    gen = torch.Generator().manual_seed(seed)
+
+    def distance(action: torch.Tensor) -> torch.Tensor:
+        return model.shaping_between(source, model.shared_target(torch.cat([s, action], 1)))
+
+    start = torch.clamp(torch.as_tensor(np.asarray(first, dtype=np.float32)), lo, hi)
+    with torch.no_grad():
+        best = distance(start)
+    for k in range(MIN_STARTS):
+        init = start if k == 0 else lo + (hi - lo) * torch.rand(start.shape, generator=gen)
+        action = init.clone().requires_grad_(True)
+        opt = torch.optim.Adam([action], lr=MIN_LR)
+        for _ in range(MIN_ITERS):
+            opt.zero_grad()
+            torch.log1p(distance(action)).sum().backward()
+            opt.step()
+            with torch.no_grad():
+                action.copy_(torch.clamp(action, lo, hi))
+        with torch.no_grad():
+            best = torch.minimum(best, distance(action))
+    return best.numpy().astype(np.float64)
+
+
 def rollout_terms(
     env_id: str,
     model: SharedSpaceModel,
@@ -85,38 +139,69 @@ def rollout_terms(
     ppo: PPOConfig,
     steps: int,
     time_scale: float = 1.0,
+    policy: Policy | None = None,
+    min_rows: int = 0,
 ) -> dict[str, np.ndarray]:
-    """Roll out the initial policy of ``ppo`` for ``steps`` env steps (over its
-    ``num_envs`` copies; the env is stepped with sampled actions, as in training) and
-    return per step (T, N): ``env_reward``, ``d_mean`` and ``d_taken`` (D of Eq. 10 with
-    the mean and with the sampled action, β = 1) and ``done``."""
+    """Roll out the initial policy of ``ppo`` (or ``policy``, its normaliser frozen) for
+    ``steps`` env steps (over its ``num_envs`` copies; the env is stepped with sampled
+    actions, as in training) and return per step (T, N): ``env_reward``, ``d_mean`` and
+    ``d_taken`` (D of Eq. 10 with the mean and with the sampled action, β = 1) and
+    ``done``; with ``min_rows`` > 0 also ``d_min_rows`` (R,) and ``d_min`` (R,): D at the
+    mean action and D minimised over actions (:func:`min_over_actions`) on R =
+    ``min_rows`` rows drawn from the rollout (seeded by ``ppo.seed``)."""
     env = make_batched(env_id, ppo.num_envs)
     try:
         n = env.num_envs
         space = env.single_action_space
         obs_dim, act_dim = int(env.single_observation_space.shape[0]), int(space.shape[0])
-        policy = initial_policy(obs_dim, act_dim, space.low, space.high, ppo)
+        trained = policy is not None
+        if policy is None:
+            policy = initial_policy(obs_dim, act_dim, space.low, space.high, ppo)
+        elif policy.act_dim != act_dim:
+            raise PvedError(f"the policy acts in {policy.act_dim} dims, {env_id} in {act_dim}")
         shaping = LatentShaping(model, bank, 1.0, env.robot_state_indices, time_scale=time_scale)
         rng = np.random.default_rng(ppo.seed)
         obs, info = env.reset(seed=ppo.seed)
-        policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
+        if not trained:
+            policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
         episode = bank.match(task_params(info, match_keys, n), rng)
         t = np.zeros(n, dtype=np.int64)
         rows = -(-steps // n)
         out = {k: np.zeros((rows, n)) for k in ("env_reward", "d_mean", "d_taken", "done")}
+        # what the search over actions needs of each row: state, mean action, source code
+        kept: dict[str, list[np.ndarray]] = {"state": [], "mean": [], "code": [], "logvar": []}
         for i in range(rows):
             mean = policy.act(obs, deterministic=True)
             taken = policy.act(obs, deterministic=False, rng=rng)
             out["d_mean"][i] = -shaping.reward(obs, mean, episode, t)
             out["d_taken"][i] = -shaping.reward(obs, taken, episode, t)
+            if min_rows:
+                q_s = shaping.encoded(n).lookup(episode, t, shaping.time_scale)
+                kept["state"].append(np.asarray(obs)[:, shaping.robot_state_indices])
+                kept["mean"].append(np.asarray(mean))
+                kept["code"].append(q_s.mean.numpy())
+                if q_s.logvar is not None:
+                    kept["logvar"].append(q_s.logvar.numpy())
             obs, reward, terminated, truncated, info = env.step(taken)
             done = np.asarray(terminated, bool) | np.asarray(truncated, bool)
             out["env_reward"][i], out["done"][i] = reward, done
-            policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
+            if not trained:
+                policy.obs_normalizer.update(np.asarray(obs, dtype=np.float64))
             t += 1
             if done.any():
                 t[done] = 0
                 episode[done] = bank.match(task_params(info, match_keys, n)[done], rng)
+        if min_rows:
+            pick = np.random.default_rng(ppo.seed).permutation(rows * n)[:min_rows]
+            rows_of = {k: np.concatenate(v)[pick] for k, v in kept.items() if v}
+            source = SharedRep(
+                torch.as_tensor(rows_of["code"]),
+                torch.as_tensor(rows_of["logvar"]) if "logvar" in rows_of else None,
+            )
+            out["d_min_rows"] = out["d_mean"].reshape(-1)[pick]
+            out["d_min"] = min_over_actions(
+                model, source, rows_of["state"], rows_of["mean"], space.low, space.high, ppo.seed
+            )
         return out
     finally:
         env.close()
@@ -194,7 +279,7 @@ def audit(
             "term_over_env": float(np.mean(-shaping)) / max(env_abs, 1e-12),
         }
     ratio = terms["d_taken"] / np.maximum(terms["d_mean"], 1e-12)
-    return {
+    result: dict[str, Any] = {
         "steps": int(terms["env_reward"].size),
         "d_mean_action": _quantiles(terms["d_mean"]),
         "d_taken_action": _quantiles(terms["d_taken"]),
@@ -202,6 +287,16 @@ def audit(
         "env_reward_abs_mean": env_abs,
         "by_beta": by_beta,
     }
+    if "d_min" in terms:
+        at_mean, least = terms["d_min_rows"], terms["d_min"]
+        result["removable_by_action"] = {
+            "rows": int(least.size),
+            "d_mean_action": _quantiles(at_mean),
+            "d_min_over_actions": _quantiles(least),
+            # per row, the share of D the best action found removes (a lower bound)
+            "share_median": float(np.median(1.0 - least / np.maximum(at_mean, 1e-12))),
+        }
+    return result
 
 
 def audit_transfer_start(
@@ -215,13 +310,18 @@ def audit_transfer_start(
     betas: Sequence[float],
     time_scale: float = 1.0,
     seed: int = 2000,
+    policy: Policy | None = None,
+    min_rows: int = 0,
 ) -> dict[str, Any]:
-    """:func:`audit` of :func:`rollout_terms` for a transfer run of ``ppo`` with ``seed``."""
+    """:func:`audit` of :func:`rollout_terms` for a transfer run of ``ppo`` with ``seed``
+    (or of ``policy``), with D minimised over actions on ``min_rows`` rows."""
     if steps <= 0:
         raise PvedError(f"steps must be > 0, not {steps}")
     torch.set_num_threads(1)
     ppo = dataclasses.replace(ppo, seed=seed)
-    terms = rollout_terms(env_id, model, bank, match_keys, ppo, steps, time_scale)
+    terms = rollout_terms(
+        env_id, model, bank, match_keys, ppo, steps, time_scale, policy=policy, min_rows=min_rows
+    )
     return {
         "env_id": env_id,
         "seed": seed,
@@ -238,14 +338,18 @@ def audit_pair(
     steps: int = 32_768,
     betas: Sequence[float] | None = None,
     seed: int = 2000,
+    policy_path: Path | str | None = None,
+    min_rows: int = 2048,
     out: Path | str | None = None,
 ) -> dict[str, Any]:
     """``pved audit-shaping``: :func:`audit_transfer_start` on ``pair``'s target task with
-    its transfer PPO config, alignment and β grid (default), written to ``out`` (JSON,
-    atomically) when given."""
+    its transfer PPO config, alignment and β grid (default), of a fresh policy or of the
+    trained one at ``policy_path``, with D minimised over actions on ``min_rows`` rows (0:
+    not), written to ``out`` (JSON, atomically) when given."""
     from pved.envs import env_id
     from pved.experiments.inputs import check_bank_for, check_model_for
     from pved.models import load_model
+    from pved.rl.policy import load_policy
     from pved.runs import atomic_write_json
     from pved.spec import get_preset
     from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank
@@ -253,6 +357,7 @@ def audit_pair(
     preset = get_preset(pair)
     betas = tuple(preset.beta_grid_for("pved") if betas is None else betas)
     check_int("--steps", steps, low=1)
+    check_int("--min-rows", min_rows, low=0)
     check_seed("--seed", seed)
     if not betas:
         raise PvedError("--betas must be one or more positive numbers, got none")
@@ -261,6 +366,7 @@ def audit_pair(
     if out is not None:
         check_writable("--out", out, directory=False)
     model, bank = load_model(Path(model_path)), load_bank(Path(bank_path))
+    policy = None if policy_path is None else load_policy(Path(policy_path))
     name = env_id(preset.target_agent, preset.target_task)
     probe = make_batched(name, 1)
     dt_target = getattr(probe, "dt", None)
@@ -281,8 +387,12 @@ def audit_pair(
             betas=betas,
             time_scale=bank_time_scale(preset.pairing.align, bank_dt(bank), dt_target),
             seed=seed,
+            policy=policy,
+            min_rows=min(min_rows, steps),
         ),
     }
+    if policy_path is not None:
+        result["policy"] = str(policy_path)
     if out is not None:
         atomic_write_json(Path(out), result)
     return result

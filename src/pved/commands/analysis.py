@@ -179,6 +179,7 @@ def _cmd_audit_shaping(args: argparse.Namespace) -> None:
     from pved.analysis.shaping_audit import audit_pair
     from pved.runs import run_file
 
+    policy = None if args.policy is None else run_file(args.policy, "policy.pt", "policy")
     print_json(
         audit_pair(
             args.pair,
@@ -187,6 +188,8 @@ def _cmd_audit_shaping(args: argparse.Namespace) -> None:
             steps=args.steps,
             betas=args.betas,
             seed=args.seed,
+            policy_path=policy,
+            min_rows=args.min_rows,
             out=args.out,
         )
     )
@@ -198,9 +201,10 @@ def add_audit_shaping(v: Verbs) -> None:
     p = sub.add_parser(
         "audit-shaping",
         help="Eq. 10 at the start of a transfer run: mean vs sampled action, reward clip",
-        description="On rollouts of a fresh transfer policy: D with the mean and with the "
-        "sampled action on the same states, how often PPO's reward clip binds with the "
-        "normaliser on env reward + shaping and on the env reward alone, per beta.",
+        description="On rollouts of a fresh transfer policy (or --policy): D with the mean "
+        "and with the sampled action on the same states, how often PPO's reward clip binds "
+        "with the normaliser on env reward + shaping and on the env reward alone, per "
+        "beta, and how much of D the best action at each state would remove.",
     )
     p.add_argument("--pair", default="reacher", help=pair_help)
     p.add_argument("--model", type=Path, required=True, help="model.pt or its run directory")
@@ -208,6 +212,18 @@ def add_audit_shaping(v: Verbs) -> None:
     p.add_argument("--steps", type=int, default=32_768, help="env steps of the rollout")
     p.add_argument("--betas", type=float, nargs="+", help="default: the pair's beta grid")
     p.add_argument("--seed", type=int, default=2000, help="the transfer run's PPO seed")
+    p.add_argument(
+        "--policy",
+        type=Path,
+        help="policy.pt or its run directory: roll out this trained policy, not a fresh one",
+    )
+    p.add_argument(
+        "--min-rows",
+        type=int,
+        default=2048,
+        help="rows on which D is minimised over actions (how much of D the action can "
+        "remove); 0: none",
+    )
     p.add_argument("--out", type=Path, help="also write the JSON here")
     p.set_defaults(func=_cmd_audit_shaping)
 
