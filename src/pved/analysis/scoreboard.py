@@ -9,10 +9,10 @@ difference above 0) on at least :data:`AHEAD_NEEDED` of the four pairs and behin
 below 0) on none, and on those pairs its mean curve reaches PPO's final mean within
 :data:`SPEED_FRACTION` of PPO's steps. With fewer pairs than four the goal is not judged.
 
-The intervals are ``pved claims``' (:func:`pved.analysis.curves.bootstrap_difference`,
-the same resamples and seed): two levels, the source policies and the PPO seeds, so they
-carry the variation between source policies as well as between seeds. A group's own CI is
-from the resamples of its difference from PPO.
+The comparison is ``pved claims``' test "beats" (:meth:`pved.analysis.judge.Judge.beats`:
+the same two-level bootstrap over source policies and PPO seeds, resamples and seed), so
+the intervals carry the variation between source policies as well as between seeds. A
+group's own CI is from the resamples of its difference from PPO.
 
 The inputs are finished ``pved protocol`` directories (``summary.json``): a pair may come
 from several, say the method's screen and the protocol that ran PVED and the oracle,
@@ -28,18 +28,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from pved.analysis.curves import bootstrap_difference
 from pved.analysis.judge import (
     FOUR,
-    REPS,
-    SEED,
+    HOLDS,
+    NOT_HOLD,
+    Judge,
     PairSummary,
     check_pair,
     load_summary,
-    run_seeds,
-    run_sources,
 )
 from pved.errors import PvedError
 
@@ -120,28 +116,6 @@ def _run_values(m: dict[str, Any], metric: str) -> list[tuple[Any, float]]:
     return sorted((str(r.get("key")), float(r[metric])) for r in m.get("runs", []))
 
 
-def _scores(pair: PairSummary, method: str) -> np.ndarray | None:
-    """Final scores (runs,) of ``method`` on ``pair``; None where it has no runs."""
-    runs = (pair.methods.get(method) or {}).get("runs", [])
-    return np.asarray([float(r[pair.metric]) for r in runs]) if runs else None
-
-
-def _against_ppo(pairs: dict[str, PairSummary], pair: str, method: str) -> dict[str, Any]:
-    """mean final(method) − mean final(ppo) with CIs, from the two-level bootstrap."""
-    a, b = _scores(pairs[pair], method), _scores(pairs[pair], "ppo")
-    assert a is not None and b is not None
-    return bootstrap_difference(
-        a,
-        b,
-        reps=REPS,
-        seed=SEED,
-        seeds_a=run_seeds(pairs, pair, method),
-        seeds_b=run_seeds(pairs, pair, "ppo"),
-        sources_a=run_sources(pairs, pair, method),
-        sources_b=run_sources(pairs, pair, "ppo"),
-    )
-
-
 def _ppo_steps(pair: PairSummary) -> int | None:
     """PPO's steps: the last step of its mean curve in the summary."""
     steps = (pair.methods.get("ppo") or {}).get("curve_steps")
@@ -153,22 +127,26 @@ def pair_row(pairs: dict[str, PairSummary], name: str, method: str) -> dict[str,
     its standing (ahead, behind, level) and its speed; or the reason it is missing."""
     pair = pairs[name]
     row: dict[str, Any] = {"pair": name, "metric": pair.metric, "budget": pair.budget}
-    missing = [m for m in (method, "ppo") if _scores(pair, m) is None]
+    missing = [m for m in (method, "ppo") if not (pair.methods.get(m) or {}).get("runs")]
     if missing:
         row["reason"] = f"no runs of {' or '.join(missing)} on {name}"
         return row
+    judge = Judge(pairs)
+    # the method against PPO as `pved claims` tests "beats": its groups, difference, p
+    beats = judge.beats(name, method, "ppo")
+    if "difference" not in beats:
+        row["reason"] = beats["reason"]
+        return row
     columns: dict[str, Any] = {}
-    for m in (method, *BASELINES[1:]):
-        if _scores(pair, m) is None:
-            continue
-        d = _against_ppo(pairs, name, m)
-        columns[m] = {k: d["a"][k] for k in ("runs", "mean", "mean_ci")}
-        if m == method:  # PPO's own CI from the resamples of the method's difference
-            columns["ppo"] = {k: d["b"][k] for k in ("runs", "mean", "mean_ci")}
-            row["difference"] = {"value": d["diff"], "ci": d["diff_ci"], "p": d["tests"][0]["p"]}
+    for group in beats["groups"]:  # PPO's CI from the resamples of the method's difference
+        columns[group["method"]] = {k: group[k] for k in ("runs", "mean", "mean_ci")}
+    for m in BASELINES[1:]:
+        other = judge.beats(name, m, "ppo") if (pair.methods.get(m) or {}).get("runs") else {}
+        for group in other.get("groups", [])[:1]:
+            columns[m] = {k: group[k] for k in ("runs", "mean", "mean_ci")}
     row["columns"] = columns
-    lo, hi = row["difference"]["ci"]
-    row["standing"] = AHEAD if lo > 0 else BEHIND if hi < 0 else LEVEL
+    row["difference"] = {**beats["difference"], "p": beats["p"]}
+    row["standing"] = {HOLDS: AHEAD, NOT_HOLD: BEHIND}.get(beats["verdict"], LEVEL)
     ppo_steps = _ppo_steps(pair)
     entry = pair.methods[method]
     reach = entry.get("steps_to_ppo_final")
