@@ -12,14 +12,11 @@ import pytest
 import torch
 
 import pved  # noqa: F401  (registers the env ids)
+from helpers import push_bank_and_model
 from pved.analysis.shaping_audit import audit, clip_shares, rollout_terms
-from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.models import PVED, ModelDims, PVEDConfig
-from pved.pretrained import pretrained_policy_path
-from pved.rl.policy import load_policy
 from pved.rl.ppo import PPOConfig
-from pved.transfer.source_bank import SourceBank, build_source_bank
 
 
 def test_clip_shares_of_the_two_treatments() -> None:
@@ -46,26 +43,8 @@ def test_clip_shares_of_the_two_treatments() -> None:
         clip_shares(env, shaping[:10], done)
 
 
-def _push_bank_and_model() -> tuple[SourceBank, PVED]:
-    """A bank of the shipped Reacher3 Push policy (8 episodes) and an untrained PVED of
-    the reacher pair's dims, standardised on it."""
-    source = make_batched("pved/Reacher3Push-v0", 4)
-    bank = build_source_bank(
-        source, load_policy(pretrained_policy_path("Reacher3", "Push")), 8, ("button_start",)
-    )
-    target = make_batched("pved/Reacher4Push-v0", 1)
-    n_t = len(target.robot_state_indices)
-    dims = ModelDims(bank.dim, n_t + 4, len(bank.header["robot_state_indices"]), n_t)
-    torch.manual_seed(0)
-    model = PVED(dims, PVEDConfig())
-    model.fit_standardization(
-        torch.as_tensor(bank.x.reshape(-1, bank.dim)), torch.randn(512, dims.target_dim)
-    )
-    return bank, model
-
-
 def test_audit_of_a_fresh_policy_on_the_push_target() -> None:
-    bank, model = _push_bank_and_model()
+    bank, model = push_bank_and_model()
     ppo = PPOConfig(num_envs=4, seed=3)
     terms = rollout_terms("pved/Reacher4Push-v0", model, bank, ("button_start",), ppo, 400)
     assert terms["d_mean"].shape == (100, 4)
@@ -137,7 +116,7 @@ def test_the_search_over_actions_finds_an_action_whose_code_is_the_source_s() ->
 
 @pytest.mark.usefixtures("one_thread")
 def test_the_audit_reads_how_much_of_d_the_action_can_remove() -> None:
-    bank, model = _push_bank_and_model()
+    bank, model = push_bank_and_model()
     ppo = PPOConfig(num_envs=4, seed=3)
     terms = rollout_terms(
         "pved/Reacher4Push-v0", model, bank, ("button_start",), ppo, 200, min_rows=32
