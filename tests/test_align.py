@@ -11,6 +11,7 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 import pytest
+import torch
 
 import pved  # noqa: F401  (registers the env ids)
 from helpers import (
@@ -24,7 +25,7 @@ from pved.envs import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
 from pved.experiments.stages import transfer_spec
-from pved.models import PVED
+from pved.models import PVED, build_model
 from pved.rl.guide import GUIDE_CONTEXT, ActionGuide
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
 from pved.transfer.methods import get_method
@@ -123,6 +124,39 @@ def test_the_align_loss_gradient_is_the_loss_s_and_its_weight_anneals(
     assert zero_loss == 0.0 and not zero_grad.any()
 
 
+@pytest.mark.parametrize("model_name", ["pved", "pved-state-only", "pved-det-shared"])
+def test_the_numpy_guide_is_autograd_s(inputs: tuple[SourceBank, PVED], model_name: str) -> None:
+    # the guide's loss and gradient in numpy (pved.models.numpy_distance) against the
+    # autograd path it replaces, with means inside, on and outside the action box; a
+    # model numpy does not cover (a point code) keeps autograd
+    bank, pved_model = inputs
+    env = make_batched(TARGET_PUSH, 8)
+    torch.manual_seed(1)
+    model = build_model(model_name, pved_model.dims)
+    for norm in ("source_norm", "target_norm"):  # unit-scale inputs, as the helper's
+        getattr(model, norm).load_state_dict(getattr(pved_model, norm).state_dict())
+    shaping = LatentShaping(model, bank, 0.5, env.robot_state_indices, form="align")
+    guide = AlignGuide(shaping, env.single_action_space.low, env.single_action_space.high, 8)
+    if model_name == "pved-det-shared":
+        assert guide.distance is None
+        return
+    assert guide.distance is not None
+    obs, _ = env.reset(seed=4)
+    ctx = guide.context(obs, np.arange(8) % len(bank.x), np.arange(8) * 3)
+    mean = np.random.default_rng(1).uniform(-1.3, 1.3, (8, 4)).astype(np.float32)
+    mean[0, 0], mean[1, 1] = 1.0, -1.0  # on the box's edge: clamp passes the gradient
+    loss_np, grad_np = guide.loss_grad(ctx, mean, 0.1)
+    loss_t, grad_t = guide._loss_grad_torch(ctx, mean, guide.weight(0.1))
+    assert loss_np == pytest.approx(loss_t, rel=1e-5)
+    np.testing.assert_allclose(grad_np, grad_t, rtol=1e-4, atol=1e-6 * np.abs(grad_t).max())
+    outside = np.abs(mean) > 1.0
+    assert outside.any() and not grad_np[outside].any()
+    if model_name == "pved":
+        assert np.abs(grad_np[~outside]).min() > 0
+    else:  # the state-only encoder never sees the action
+        assert not grad_np.any()
+
+
 class _PullTo:
     """A guide pulling the mean action to the context's one column: loss 10·(mean − c)²."""
 
@@ -192,6 +226,27 @@ def test_align_shaped_ppo_resumes_exactly(inputs: tuple[SourceBank, PVED], tmp_p
     a = params_of(train_ppo(_shaped(inputs, "align"), cfg, progress=False))
     b = params_of(train_ppo(make_batched(TARGET_PUSH, 4), cfg, progress=False))
     assert not np.array_equal(a, b)
+
+
+def test_a_faded_guide_s_zero_context_changes_nothing(
+    inputs: tuple[SourceBank, PVED], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # once the weight is 0 the env stops looking the context up (AlignGuide.faded): the
+    # run is the same to the bit as one that keeps looking it up
+    cfg = PPOConfig(
+        num_envs=4, steps_per_env=32, minibatch_size=64, epochs=2, hidden_sizes=(32, 32),
+        total_steps=4 * 4 * 32, checkpoint_every=0, seed=3,
+    )  # fmt: skip
+    env = _shaped(inputs, "align")
+    fading = params_of(train_ppo(env, cfg, progress=False))
+    guide = env.action_guide
+    assert isinstance(guide, AlignGuide) and guide.faded
+    assert not guide.context(np.ones((2, env.single_observation_space.shape[0])), np.zeros(2, int),
+                             np.zeros(2, int)).any()  # fmt: skip
+    never = property(lambda self: False, lambda self, v: None)
+    monkeypatch.setattr(AlignGuide, "faded", never, raising=False)
+    looking = params_of(train_ppo(_shaped(inputs, "align"), cfg, progress=False))
+    np.testing.assert_array_equal(fading, looking)
 
 
 def test_pved_align_is_a_method_with_its_own_config(

@@ -372,6 +372,28 @@ def test_every_model_trains_and_shapes_through_the_cli(
     assert shaping and all(v < 0 for v in shaping)  # −β·distance, averaged over the rollout
 
 
+def test_the_align_methods_guide_until_their_own_share_of_the_run(pipeline: Path) -> None:
+    # spec -> LatentShaping -> AlignGuide -> PPO, through the CLI: with 4 updates (progress
+    # 0, 1/4, 1/2, 3/4 before each) pved-align (guide gone at 1/2) guides the first two,
+    # pved-align-short (gone at 1/4) only the first
+    guided = {}
+    for method in ("pved-align", "pved-align-short"):
+        code = main(["transfer", "--runs", str(pipeline), "--model", method, "--steps", "8192",
+                     "--eval-every", "8192", "--eval-episodes", "16",
+                     "--final-eval-episodes", "16"])  # fmt: skip
+        assert code == 0
+        run = pipeline / "reacher/transfer" / method / "seed20000"
+        rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+        losses = [r["loss/guide_loss"] for r in rows if "loss/guide_loss" in r]
+        assert len(losses) == 4, rows
+        guided[method] = [loss > 0 for loss in losses]
+        assert json.loads((run / "result.json").read_text())["guide_backend"] == "numpy"
+    assert guided == {
+        "pved-align": [True, True, False, False],
+        "pved-align-short": [True, False, False, False],
+    }
+
+
 def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -> None:
     from pved.spec import get_preset
 

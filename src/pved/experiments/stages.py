@@ -66,7 +66,7 @@ from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.spec import get_preset, preset_for_agent, spec_identity
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
+from pved.transfer.shaping import AlignGuide, LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
     bank_dt,
     bank_from_episodes,
@@ -683,6 +683,7 @@ def transfer(
             align_anneal=spec.align_anneal,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
+    guide = getattr(env, "action_guide", None)
     eval_fn = _eval_fn(
         name, eval_episodes, 10**6 + seed, env_kwargs, info_keys=preset.eval_info_keys
     )
@@ -714,6 +715,8 @@ def transfer(
             "seed": seed,
             "steps": ppo.total_steps,
             "policy": str(policy_file),
+            # pved-align's loss in numpy or by autograd: rounding apart, the same run
+            **({"guide_backend": guide.backend} if isinstance(guide, AlignGuide) else {}),
             **{f"final/{k}": v for k, v in final.items()},
         }
     )

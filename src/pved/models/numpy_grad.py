@@ -192,7 +192,9 @@ class _Encoder:
         if views.has(f"{prefix}.head_y.weight"):
             self.head_y, self.g_head_y = views.linear(f"{prefix}.head_y")
 
-    def forward(self, x: np.ndarray) -> _EncoderCache:
+    def forward(self, x: np.ndarray, individual: bool = True) -> _EncoderCache:
+        """The posteriors of c and (unless ``individual`` is False, or there is no y
+        head) of y for inputs x (B, W)."""
         pre1 = _linear(x, self.l1)
         h1 = np.maximum(pre1, np.float32(0.0))
         pre2 = _linear(h1, self.l2)
@@ -202,7 +204,7 @@ class _Encoder:
         else:
             mean_c, logvar_c, dclamp_c = _gaussian_head(h2, self.head_c)
         mean_y = logvar_y = dclamp_y = None
-        if self.head_y is not None:
+        if self.head_y is not None and individual:
             mean_y, logvar_y, dclamp_y = _gaussian_head(h2, self.head_y)
         return _EncoderCache(
             x, pre1, h1, pre2, h2, mean_c, logvar_c, dclamp_c, mean_y, logvar_y, dclamp_y
@@ -215,24 +217,33 @@ class _Encoder:
         d_logvar_c: np.ndarray | None,
         d_mean_y: np.ndarray | None,
         d_logvar_y: np.ndarray | None,
-    ) -> None:
+        params: bool = True,
+    ) -> np.ndarray | None:
+        """Write the parameters' gradients (unless ``params`` is False) from those of the
+        posteriors' parts; with ``params`` False, return the gradient with respect to the
+        input x (B, W) instead (the y head is then not used: pass None for it)."""
         d_out_c = d_mean_c
         if d_logvar_c is not None:
             assert cache.dclamp_c is not None
             d_out_c = np.concatenate([d_mean_c, d_logvar_c * cache.dclamp_c], axis=1)
-        _linear_backward(cache.h2, d_out_c, self.g_head_c)
+        if params:
+            _linear_backward(cache.h2, d_out_c, self.g_head_c)
         d_h2 = d_out_c @ self.head_c[0]
-        if self.head_y is not None:
+        if self.head_y is not None and d_mean_y is not None:
             assert self.g_head_y is not None and cache.dclamp_y is not None
-            assert d_mean_y is not None and d_logvar_y is not None
+            assert d_logvar_y is not None and params
             d_out_y = np.concatenate([d_mean_y, d_logvar_y * cache.dclamp_y], axis=1)
             _linear_backward(cache.h2, d_out_y, self.g_head_y)
             d_h2 += d_out_y @ self.head_y[0]
         d_h2 *= cache.pre2 > 0.0  # torch's ReLU passes no gradient at exactly 0
-        _linear_backward(cache.h1, d_h2, self.g2)
+        if params:
+            _linear_backward(cache.h1, d_h2, self.g2)
         d_h1 = d_h2 @ self.l2[0]
         d_h1 *= cache.pre1 > 0.0
-        _linear_backward(cache.x, d_h1, self.g1)
+        if params:
+            _linear_backward(cache.x, d_h1, self.g1)
+            return None
+        return d_h1 @ self.l1[0]
 
 
 def _gaussian_head(h: np.ndarray, head: Linear) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -340,6 +351,21 @@ def _log_likelihood(
 def _kl_standard_normal(mean: np.ndarray, logvar: np.ndarray) -> np.ndarray:
     """KL(N(mean, e^logvar) ‖ N(0, I)) per row, (B, K) -> (B,)."""
     return np.float32(0.5) * (np.exp(logvar) + mean * mean - 1.0 - logvar).sum(axis=1)
+
+
+def _kl_diag(
+    diff: np.ndarray, logvar_S: np.ndarray, logvar_T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """KL(q_S ‖ q_T) between diagonal Gaussians per row (Eqs. 7 and 10), from diff =
+    mean_S − mean_T and the two log-variances, all (B, K); returns (KL (B,), e^−logvar_T,
+    e^(logvar_S − logvar_T)), the last two what its gradients are made of:
+    dKL/dmean_T = −diff·e^−logvar_T, dKL/dlogvar_T = ½(1 − ratio − diff²·e^−logvar_T)."""
+    inv_var_T = np.exp(-logvar_T)
+    ratio = np.exp(logvar_S - logvar_T)
+    kl = np.float32(0.5) * (ratio + diff * diff * inv_var_T - 1.0 - (logvar_S - logvar_T)).sum(
+        axis=1
+    )
+    return kl, inv_var_T, ratio
 
 
 class NumpyStep(abc.ABC):
@@ -531,11 +557,7 @@ class PVEDNumpyStep(NumpyStep):
             kl_C = np.float32(0.5) * sqdist
         else:
             assert enc_S.logvar_c is not None and enc_T.logvar_c is not None
-            inv_var_T = np.exp(-enc_T.logvar_c)
-            ratio = np.exp(enc_S.logvar_c - enc_T.logvar_c)
-            kl_C = np.float32(0.5) * (
-                ratio + diff * diff * inv_var_T - 1.0 - (enc_S.logvar_c - enc_T.logvar_c)
-            ).sum(axis=1)
+            kl_C, inv_var_T, ratio = _kl_diag(diff, enc_S.logvar_c, enc_T.logvar_c)
 
         # -- backward: decoders, then the samples, then the posteriors -------------------
         d_c_in_T, d_y_in_T = self.decoder_T.backward(dec_T, d_mean_T)

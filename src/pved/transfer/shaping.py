@@ -36,6 +36,7 @@ from pved.checks import check_number
 from pved.envs.base import BatchedEnv, Info
 from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
+from pved.models.numpy_distance import TargetDistance, numpy_distance_covers
 from pved.rl.guide import GUIDE_CONTEXT
 from pved.transfer.source_bank import SourceBank
 from pved.transfer.source_cache import (
@@ -277,10 +278,31 @@ class AlignGuide:
         self.code_dim = int(encoded.mean.shape[-1])
         self.stochastic = encoded.logvar is not None
         self.context_dim = self.state_dim + self.code_dim * (2 if self.stochastic else 1)
+        # the same loss in numpy where the model allows (pved.models.numpy_distance: a
+        # fifth of autograd's cost at PPO's minibatch size); autograd otherwise
+        model = shaping.model
+        self.distance: TargetDistance | None = (
+            TargetDistance(model) if self.stochastic and numpy_distance_covers(model) else None
+        )
+        self.low_np = self.low.numpy()
+        self.high_np = self.high.numpy()
+        # True once PPO has asked for the loss where its weight is 0: the weight never
+        # rises again as the run goes on, so the context rows are not read from then on
+        # and :meth:`context` gives zeros instead of looking them up (a resumed run looks
+        # them up until its first update: the same numbers, a little later)
+        self.faded = False
+
+    @property
+    def backend(self) -> str:
+        """How the loss is computed: ``"numpy"`` or ``"torch"`` (autograd); the two differ
+        in rounding only, so a run records it (its result) rather than hashing it."""
+        return "numpy" if self.distance is not None else "torch"
 
     def context(self, obs: np.ndarray, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Context rows (N, context_dim) float32 for target observations (N, obs_dim) at
-        steps ``t`` (N,) of bank episodes ``episode`` (N,)."""
+        steps ``t`` (N,) of bank episodes ``episode`` (N,); zeros once :attr:`faded`."""
+        if self.faded:
+            return np.zeros((len(obs), self.context_dim), dtype=np.float32)
         sh = self.shaping
         q_s = sh.encoded(len(obs)).lookup(episode, t, sh.time_scale)
         parts = [obs[:, sh.robot_state_indices].astype(np.float32), q_s.mean.numpy()]
@@ -295,10 +317,38 @@ class AlignGuide:
     def loss_grad(
         self, context: np.ndarray, mean: np.ndarray, progress: float
     ) -> tuple[float, np.ndarray]:
-        """w · mean over rows of log(1 + D) and its gradient (B, A) w.r.t. ``mean``."""
+        """w · mean over rows of log(1 + D) and its gradient (B, A) w.r.t. ``mean``;
+        where w is 0 the guide is :attr:`faded` from then on."""
         w = self.weight(progress)
         if w == 0.0:
+            self.faded = True
             return 0.0, np.zeros_like(mean, dtype=np.float32)
+        if self.distance is not None:
+            return self._loss_grad_numpy(context, mean, w)
+        return self._loss_grad_torch(context, mean, w)
+
+    def _loss_grad_numpy(
+        self, context: np.ndarray, mean: np.ndarray, w: float
+    ) -> tuple[float, np.ndarray]:
+        """:meth:`loss_grad` through :class:`TargetDistance` (the weight ``w`` > 0)."""
+        assert self.distance is not None
+        ctx = np.asarray(context, dtype=np.float32)
+        mu = np.asarray(mean, dtype=np.float32)
+        s, k = self.state_dim, self.code_dim
+        clipped = np.clip(mu, self.low_np, self.high_np)
+        x_t = np.concatenate([ctx[:, :s], clipped], 1)
+        distance, done = self.distance.forward(ctx[:, s : s + k], ctx[:, s + k :], x_t)
+        loss = w * float(np.log1p(distance).mean(dtype=np.float64))
+        d_distance = np.float32(w / len(mu)) / (np.float32(1.0) + distance)
+        grad = self.distance.input_grad(done, d_distance)[:, s:]
+        # torch.clamp's gradient: 1 inside the box, bounds included, 0 outside
+        grad *= clipped == mu
+        return loss, grad
+
+    def _loss_grad_torch(
+        self, context: np.ndarray, mean: np.ndarray, w: float
+    ) -> tuple[float, np.ndarray]:
+        """:meth:`loss_grad` by autograd, for any model (the weight ``w`` > 0)."""
         ctx = torch.as_tensor(np.asarray(context, dtype=np.float32))
         s, k = self.state_dim, self.code_dim
         q_s = SharedRep(ctx[:, s : s + k], ctx[:, s + k :] if self.stochastic else None)
