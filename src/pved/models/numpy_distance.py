@@ -7,7 +7,8 @@ encoder, forward and backward to x_T, on minibatches of 64 rows. At that size to
 per-operator dispatch and its autograd engine cost more than the arithmetic: about 1 ms
 a minibatch on reacher, as much as PPO's own gradient (the ratios are in
 docs/results.md, "What the shaping costs a run"). The same reason, and the same encoder
-code, as the models' training step (:mod:`pved.models.numpy_grad`).
+code, as the models' training step (:mod:`pved.models.numpy_grad`); in numpy a pass
+costs about a quarter of autograd's.
 
 Covered: :class:`pved.models.pved.PVED` and its variants that keep its target encoder,
 features and KL (:func:`numpy_distance_covers`); any other model keeps autograd. The

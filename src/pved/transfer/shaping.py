@@ -279,7 +279,7 @@ class AlignGuide:
         self.stochastic = encoded.logvar is not None
         self.context_dim = self.state_dim + self.code_dim * (2 if self.stochastic else 1)
         # the same loss in numpy where the model allows (pved.models.numpy_distance: a
-        # fifth of autograd's cost at PPO's minibatch size); autograd otherwise
+        # quarter of autograd's cost at PPO's minibatch size); autograd otherwise
         model = shaping.model
         self.distance: TargetDistance | None = (
             TargetDistance(model) if self.stochastic and numpy_distance_covers(model) else None
