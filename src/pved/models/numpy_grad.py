@@ -192,9 +192,7 @@ class _Encoder:
         if views.has(f"{prefix}.head_y.weight"):
             self.head_y, self.g_head_y = views.linear(f"{prefix}.head_y")
 
-    def forward(self, x: np.ndarray, individual: bool = True) -> _EncoderCache:
-        """The posteriors of c and (unless ``individual`` is False, or there is no y
-        head) of y for inputs x (B, W)."""
+    def forward(self, x: np.ndarray) -> _EncoderCache:
         pre1 = _linear(x, self.l1)
         h1 = np.maximum(pre1, np.float32(0.0))
         pre2 = _linear(h1, self.l2)
@@ -204,7 +202,7 @@ class _Encoder:
         else:
             mean_c, logvar_c, dclamp_c = _gaussian_head(h2, self.head_c)
         mean_y = logvar_y = dclamp_y = None
-        if self.head_y is not None and individual:
+        if self.head_y is not None:
             mean_y, logvar_y, dclamp_y = _gaussian_head(h2, self.head_y)
         return _EncoderCache(
             x, pre1, h1, pre2, h2, mean_c, logvar_c, dclamp_c, mean_y, logvar_y, dclamp_y
