@@ -111,6 +111,26 @@ def test_missing_pairs_leave_the_goal_unjudged(tmp_path: Path) -> None:
     assert result["goal"]["verdict"] == "not judged"
     assert result["goal"]["missing_pairs"] == [FOUR[3]]
     assert "no runs of new" in result["rows"][3]["reason"]
+    # the pair's baselines still show, the method's cells say it did not run
+    assert result["rows"][3]["columns"]["ppo"]["mean"] == pytest.approx(0.3)
+    row = scoreboard_markdown(result).splitlines()[9]
+    assert row.startswith(f"| {FOUR[3]} | score | 0.300 [") and "(15) | – | not run | – |" in row
+
+
+def test_a_pair_the_method_skipped_keeps_pved_and_the_oracle(tmp_path: Path) -> None:
+    ran = board(FOUR[0], [0.9, 0.95, 1.0])
+    skipped = {
+        "ppo": board(FOUR[1], [0.2, 0.3, 0.4])["ppo"],
+        "pved": method_entry(FOUR[1], "pved", [0.6]),
+        "oracle": method_entry(FOUR[1], "oracle", [0.8]),
+    }
+    result = scoreboard("new", [write_protocol(tmp_path / "p", {FOUR[0]: ran, FOUR[1]: skipped})])
+    columns = result["rows"][1]["columns"]
+    assert sorted(columns) == ["oracle", "ppo", "pved"]
+    assert columns["pved"]["mean"] == pytest.approx(0.6)
+    assert columns["oracle"]["mean"] == pytest.approx(0.8)
+    assert columns["ppo"]["mean"] == pytest.approx(0.3)
+    assert "difference" not in result["rows"][1] and result["goal"]["verdict"] == "not judged"
 
 
 def test_a_ppo_that_did_not_improve_is_reached_at_once(tmp_path: Path) -> None:

@@ -122,16 +122,33 @@ def _ppo_steps(pair: PairSummary) -> int | None:
     return int(steps[-1]) if isinstance(steps, list) and steps else None
 
 
+def _baseline_columns(judge: Judge, pair: PairSummary) -> dict[str, Any]:
+    """The columns of PVED and the oracle (each from its own comparison with PPO) and of
+    PPO (from the first of those, or from PPO against itself when neither ran)."""
+    columns: dict[str, Any] = {}
+    for m in BASELINES[1:]:
+        if not (pair.methods.get(m) or {}).get("runs"):
+            continue
+        for group in judge.beats(pair.name, m, "ppo").get("groups", []):
+            columns.setdefault(group["method"], {k: group[k] for k in ("runs", "mean", "mean_ci")})
+    if "ppo" not in columns and (pair.methods.get("ppo") or {}).get("runs"):
+        for group in judge.beats(pair.name, "ppo", "ppo").get("groups", [])[:1]:
+            columns["ppo"] = {k: group[k] for k in ("runs", "mean", "mean_ci")}
+    return columns
+
+
 def pair_row(pairs: dict[str, PairSummary], name: str, method: str) -> dict[str, Any]:
     """One pair's row: each column's runs, mean and CI; the method's difference from PPO,
     its standing (ahead, behind, level) and its speed; or the reason it is missing."""
     pair = pairs[name]
     row: dict[str, Any] = {"pair": name, "metric": pair.metric, "budget": pair.budget}
     missing = [m for m in (method, "ppo") if not (pair.methods.get(m) or {}).get("runs")]
+    judge = Judge(pairs)
     if missing:
         row["reason"] = f"no runs of {' or '.join(missing)} on {name}"
+        if missing == [method]:  # the baselines still give the pair's scale
+            row["columns"] = _baseline_columns(judge, pair)
         return row
-    judge = Judge(pairs)
     # the method against PPO as `pved claims` tests "beats": its groups, difference, p
     beats = judge.beats(name, method, "ppo")
     if "difference" not in beats:
@@ -140,11 +157,7 @@ def pair_row(pairs: dict[str, PairSummary], name: str, method: str) -> dict[str,
     columns: dict[str, Any] = {}
     for group in beats["groups"]:  # PPO's CI from the resamples of the method's difference
         columns[group["method"]] = {k: group[k] for k in ("runs", "mean", "mean_ci")}
-    for m in BASELINES[1:]:
-        other = judge.beats(name, m, "ppo") if (pair.methods.get(m) or {}).get("runs") else {}
-        for group in other.get("groups", [])[:1]:
-            columns[m] = {k: group[k] for k in ("runs", "mean", "mean_ci")}
-    row["columns"] = columns
+    row["columns"] = {**_baseline_columns(judge, pair), **columns}
     row["difference"] = {**beats["difference"], "p": beats["p"]}
     row["standing"] = {HOLDS: AHEAD, NOT_HOLD: BEHIND}.get(beats["verdict"], LEVEL)
     ppo_steps = _ppo_steps(pair)
@@ -230,6 +243,14 @@ def scoreboard_markdown(result: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["rows"]:
+        if "reason" in r and "columns" in r:  # the method did not run here; PPO did
+            cols = r["columns"]
+            lines.append(
+                f"| {r['pair']} | {r['metric']} | {_cell(cols.get('ppo'))} | "
+                f"{_cell(cols.get('pved'))} | not run | {_cell(cols.get('oracle'))} | – | – "
+                f"| {r['reason']} |"
+            )
+            continue
         if "reason" in r:
             lines.append(f"| {r['pair']} | {r['metric']} | {r['reason']} |||||||")
             continue
