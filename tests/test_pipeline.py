@@ -394,6 +394,20 @@ def test_the_align_methods_guide_until_their_own_share_of_the_run(pipeline: Path
     }
 
 
+def test_pved_anneal_pays_the_term_until_half_the_run(pipeline: Path) -> None:
+    # spec -> LatentShaping(stop) -> PPO, through the CLI: 4 updates of 2048 rows; the
+    # term's weight falls from 1 to 0 over the first two (stop: 4096 rows), 0 after
+    code = main(["transfer", "--runs", str(pipeline), "--model", "pved-anneal", "--steps",
+                 "8192", "--eval-every", "8192", "--eval-episodes", "16",
+                 "--final-eval-episodes", "16"])  # fmt: skip
+    assert code == 0
+    run = pipeline / "reacher/transfer/pved-anneal/seed20000"
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    shaping = [r["rollout/reward_shaping"] for r in rows if "rollout/reward_shaping" in r]
+    assert len(shaping) == 4 and shaping[0] < shaping[1] < 0.0 and shaping[2:] == [0.0, 0.0]
+    assert json.loads((run / "config.json").read_text())["config"]["reward_anneal"] == 0.5
+
+
 def test_transfer_evaluates_on_the_presets_schedule_by_default(tmp_path: Path) -> None:
     from pved.spec import get_preset
 

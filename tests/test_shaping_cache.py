@@ -241,26 +241,27 @@ def test_the_source_half_is_encoded_once(bank: SourceBank, monkeypatch: pytest.M
 
 
 @pytest.mark.parametrize(
-    ("name", "form", "copies", "start"),
+    ("name", "form", "copies", "start", "stop"),
     [
-        ("pved", "eq10", 16, 0),
-        ("pved", "potential", 16, 500),
-        ("gupta2017", "log1p", 16, 0),
-        ("pved", "potential", 3, 0),
+        ("pved", "eq10", 16, 0, 0),
+        ("pved", "potential", 16, 500, 0),
+        ("gupta2017", "log1p", 16, 0, 0),
+        ("pved", "potential", 3, 0, 0),
+        ("pved", "eq10", 16, 160, 1600),  # pved-anneal's weight falls to 0 mid-rollout
     ],
 )
 def test_a_rollouts_deferred_terms_are_the_per_step_ones_to_the_bit(
-    bank: SourceBank, name: str, form: str, copies: int, start: int, threads: int
+    bank: SourceBank, name: str, form: str, copies: int, start: int, stop: int, threads: int
 ) -> None:
     # the same actions through a per-step env and a deferred one, 130 steps (an episode
-    # boundary, a shaping start mid-rollout), the terms taken in two rollouts of 70 and 60
+    # boundary, a shaping start or stop mid-rollout), the terms taken in rollouts of 70, 60
     model = _model(name, bank)
 
     def make() -> ShapedBatchedEnv:
         env = make_batched(TARGET_PUSH, copies)
         shaping = LatentShaping(
             model, bank, BETA, env.robot_state_indices, form=form, start=start, gamma=0.9,
-            time_scale=0.3 if name == "gupta2017" else 1.0,
+            time_scale=0.3 if name == "gupta2017" else 1.0, stop=stop,
         )  # fmt: skip
         return ShapedBatchedEnv(env, shaping, MATCH_KEYS)
 
@@ -289,6 +290,9 @@ def test_a_rollouts_deferred_terms_are_the_per_step_ones_to_the_bit(
     assert np.any(np.array(terms) != 0)
     if start:
         assert np.all(np.array(terms)[: -(-start // copies)] == 0)
+    if stop:  # 0 from the step whose rows start at the stop on, and not all 0 before it
+        assert np.all(np.array(terms)[stop // copies :] == 0)
+        assert np.all(np.array(terms)[start // copies : stop // copies] != 0)
     assert np.array_equal(deferred._previous, per_step._previous)
 
 

@@ -358,17 +358,20 @@ def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, s
     """The summary table's two reward-scale cells of one method (``–`` without a shaping
     term; ``none`` for the align form, which pays none): the Eq. 10 term with its
     distance D (a KL in nats, or a point-code model's squared distance; only for the
-    ``eq10`` form, where D = term / −β) and the env's reward, each at the first and last
-    rollout."""
+    ``eq10`` form not annealed, where D = term / −β) and the env's reward, each at the
+    first and last rollout."""
     scale = method_summary.get("reward_scale")
     if not scale:
         return "–", "–"
     first, last = scale["shaping_first"], scale["shaping_last"]
     shaping = f"{first:.3g} → {last:.3g}"
-    if get_method(method).shaping_form == "align":  # its term is in the loss, not the reward
+    recipe = get_method(method)
+    if recipe.shaping_form == "align":  # its term is in the loss, not the reward
         shaping = "none (a loss on the mean action)"
     beta = method_summary.get("beta")
-    if isinstance(beta, int | float) and beta > 0 and get_method(method).shaping_form == "eq10":
+    # D = term / −β only where the weight is β all along (not an annealed term)
+    plain_eq10 = recipe.shaping_form == "eq10" and recipe.anneal is None
+    if isinstance(beta, int | float) and beta > 0 and plain_eq10:
         shaping += f" (D {-first / beta:,.4g} → {-last / beta:,.4g})"
     env = f"{scale['env_reward_first']:.3g} → {scale['env_reward_last']:.3g}"
     return shaping, env

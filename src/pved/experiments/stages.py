@@ -674,6 +674,7 @@ def transfer(
             spec.beta,
             env.robot_state_indices,
             start=spec.shaping_start,
+            stop=spec.shaping_stop,
             form=spec.shaping_form,
             time_scale=bank_time_scale(
                 preset.pairing.align, bank_dt(bank), getattr(env, "dt", None)

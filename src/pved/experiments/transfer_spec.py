@@ -38,6 +38,8 @@ class TransferSpec:
         shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
         beta: the shaping weight (Eq. 10).
         align_anneal: the align form's anneal (:class:`pved.transfer.shaping.AlignGuide`).
+        shaping_stop: env steps by which a reward form's weight has fallen to 0 (the
+            method's ``anneal`` of the run; 0: never, :class:`LatentShaping`).
     """
 
     config: dict[str, Any]
@@ -53,6 +55,7 @@ class TransferSpec:
     shaping_form: str
     shaping_action: str
     align_anneal: float = ALIGN_ANNEAL
+    shaping_stop: int = 0
 
 
 def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
@@ -90,7 +93,7 @@ def transfer_spec(
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     recipe = get_method(method)  # an unknown method name fails here, before any file check
     shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
-    align_anneal = ALIGN_ANNEAL if recipe.align_anneal is None else recipe.align_anneal
+    align_anneal = ALIGN_ANNEAL if recipe.anneal is None else recipe.anneal
     check_shaping_form(shaping_form)
     check_shaping_action(shaping_action)
     check_int("--shaping-start", shaping_start, low=0)
@@ -136,6 +139,7 @@ def transfer_spec(
         **spec_identity(preset),
     }
     shaping_inputs: tuple[Path, Path] | None = None
+    shaping_stop = 0
     train_env_kwargs: dict[str, Any] = dict(env_kwargs)
     if recipe.train_reward == "full":
         if not name.startswith("pved/"):
@@ -172,6 +176,19 @@ def transfer_spec(
             config["shaping_form"] = shaping_form
         if shaping_form == "align":
             config["align_anneal"] = align_anneal
+        elif recipe.anneal is not None:  # a reward form's term annealed (pved-anneal)
+            if shaping_form == "potential":
+                raise PvedError(
+                    f"{method} anneals its term, which the potential form cannot take "
+                    "(its Φ must stay one function): give another --shaping-form"
+                )
+            shaping_stop = max(1, round(recipe.anneal * ppo.total_steps))
+            if shaping_stop <= shaping_start:
+                raise PvedError(
+                    f"--shaping-start {shaping_start}: {method}'s term is gone by step "
+                    f"{shaping_stop} ({recipe.anneal:g} of the run); start it earlier"
+                )
+            config["reward_anneal"] = recipe.anneal
     if shaping_start and shaping_inputs is None:
         raise PvedError(f"a shaping start needs a shaping method; {method!r} has no shaping term")
     if shaping_form != "eq10" and shaping_inputs is None:
@@ -190,4 +207,5 @@ def transfer_spec(
         shaping_form=shaping_form,
         shaping_action=shaping_action,
         align_anneal=align_anneal,
+        shaping_stop=shaping_stop,
     )

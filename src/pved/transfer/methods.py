@@ -38,8 +38,9 @@ class Method:
         summary: one line for ``--help`` and the docs.
         beta_grid: the protocol's β grid for the method where a pair sets none for it
             (None: the pair's common grid).
-        align_anneal: the ``"align"`` form's share of the run over which its weight falls
-            to 0 (None: :data:`pved.transfer.shaping.ALIGN_ANNEAL`).
+        anneal: the share of the run over which the shaping's weight falls linearly to
+            0: the ``"align"`` form's loss (None: :data:`pved.transfer.shaping.ALIGN_ANNEAL`)
+            or a reward form's term (None: never, as in the paper).
     """
 
     name: str
@@ -49,7 +50,7 @@ class Method:
     paper: bool = True
     summary: str = ""
     beta_grid: tuple[float, ...] | None = None
-    align_anneal: float | None = None
+    anneal: float | None = None
 
     @property
     def shaped(self) -> bool:
@@ -112,7 +113,19 @@ METHODS: dict[str, Method] = {
         paper=False,
         summary="beyond the paper: pved-align with the guide gone by a quarter of the run",
         beta_grid=(1.0, 0.1, 0.01),
-        align_anneal=0.25,
+        anneal=0.25,
+    ),
+    # Beyond the paper (docs/decisions/transfer.md, "pved-anneal"): the paper's Eq. 10 term
+    # with β falling linearly to 0 by half the run (issue 51's "β annealed to zero"). The
+    # term guides while the target knows nothing, where it paid off (walker-hopper); the
+    # second half is plain PPO, which can undo what a term that changes the optimal
+    # policy taught (humanoid-ant's PVED walks half as far as PPO).
+    "pved-anneal": Method(
+        "pved-anneal",
+        "pved",
+        paper=False,
+        summary="beyond the paper: Eq. 10 with beta annealed to 0 by half the run",
+        anneal=0.5,
     ),
     NO_TRANSFER: Method(NO_TRANSFER, None, summary="PPO on the target task's reward alone"),
     ORACLE: Method(
@@ -123,7 +136,9 @@ METHODS: dict[str, Method] = {
 for _method in METHODS.values():  # a typo in the table fails at import, not mid-protocol
     assert _method.shaping_form in SHAPING_FORMS, _method
     assert _method.model is None or _method.model in MODELS, _method
-    assert _method.align_anneal is None or _method.shaping_form == "align", _method
+    # a potential's sum over an episode telescopes only if Φ stays one function
+    assert _method.anneal is None or _method.shaping_form != "potential", _method
+    assert _method.anneal is None or 0.0 < _method.anneal <= 1.0, _method
 
 
 def get_method(name: str) -> Method:

@@ -102,6 +102,10 @@ class LatentShaping:
             applies from the first step (``start=0``, the default); it asks whether the
             term hurts from the start, when it can be far larger than the task reward, or
             all along (docs/decisions.md).
+        stop: env steps (rows shaped) by which the term's weight has fallen linearly from
+            1 to 0, counted from the first row (0, the default: never, as in the paper);
+            from then on the term is 0 and nothing is encoded. Not in the paper:
+            ``pved-anneal`` (docs/decisions/transfer.md).
         form: ``"eq10"`` (the default) gives −β·D, the paper's term; ``"potential"``
             takes Φ_t = −β·D_t as a potential and pays Φ_t − Φ_{t−1}/γ at step t (look-back
             potential-based shaping, Wiewiora et al. 2003; Φ_{−1} = 0), whose discounted sum
@@ -133,6 +137,7 @@ class LatentShaping:
         robot_state_indices: np.ndarray,
         start: int = 0,
         form: str = "eq10",
+        stop: int = 0,
         time_scale: float = 1.0,
         action: str = "mean",
         gamma: float = 0.99,
@@ -141,8 +146,15 @@ class LatentShaping:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
         check_shaping_form(form)
-        if form == "align" and start:
-            raise PvedError("the align form has no shaping start (its weight anneals instead)")
+        if form == "align" and (start or stop):
+            raise PvedError(
+                "the align form has no shaping start or stop (its weight anneals with PPO's "
+                "progress instead: align_anneal)"
+            )
+        if stop < 0 or (stop and stop <= start):
+            raise PvedError(f"the shaping stop must be 0 or after the start ({start}), not {stop}")
+        if stop and form == "potential":
+            raise PvedError("the potential form cannot be annealed: Φ must stay one function")
         check_shaping_action(action)
         if not (np.isfinite(time_scale) and time_scale > 0):
             raise PvedError(f"the bank's time scale must be a positive number, not {time_scale}")
@@ -153,6 +165,7 @@ class LatentShaping:
         self.beta = check_number("beta", beta, low=0.0)
         self.robot_state_indices = np.asarray(robot_state_indices, dtype=np.int64)
         self.start = int(start)
+        self.stop = int(stop)
         self.form = form
         self.time_scale = float(time_scale)
         self.action = action
@@ -160,7 +173,8 @@ class LatentShaping:
         self.align_anneal = check_number(
             "align_anneal", align_anneal, low=0.0, high=1.0, low_open=True
         )
-        # rows shaped so far: the clock ``start`` is read against (saved with the env)
+        # rows shaped so far: the clock ``start`` and ``stop`` are read against (saved
+        # with the env)
         self.steps = 0
         # q_φS of every bank row, encoded at the first shaped step (source_cache.py)
         self._encoded: EncodedBank | None = None
@@ -174,18 +188,25 @@ class LatentShaping:
         self, obs: np.ndarray, action: np.ndarray, episode: np.ndarray, t: np.ndarray
     ) -> np.ndarray:
         """Shaping term (N,) for target observations (N, obs_dim) and actions (N, act_dim)
-        at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,); 0 while
-        fewer than ``start`` rows have been shaped before this call."""
-        if self.held(len(obs)):
+        at steps ``t`` (N,) of target episodes matched to bank ``episode`` (N,), times
+        the weight :meth:`clock` gives this call's rows."""
+        weight = self.clock(len(obs))
+        if weight == 0.0:
             return np.zeros(len(obs))
-        return self.values(obs, action, episode, t, len(obs))
+        value = self.values(obs, action, episode, t, len(obs))
+        return value if weight == 1.0 else weight * value
 
-    def held(self, rows: int) -> bool:
-        """Count ``rows`` more rows shaped; True when fewer than ``start`` had been shaped
-        before them (their term is then 0)."""
+    def clock(self, rows: int) -> float:
+        """Count ``rows`` more rows shaped; the weight of their term, from the rows shaped
+        before them: 0 before ``start``, then 1, or with a ``stop`` 1 − rows/stop down
+        to 0."""
         before = self.steps
         self.steps += rows
-        return before < self.start
+        if before < self.start:
+            return 0.0
+        if self.stop:
+            return max(0.0, 1.0 - before / self.stop)
+        return 1.0
 
     def values(
         self,
@@ -370,7 +391,7 @@ class _PendingStep:
     encoded: np.ndarray | None  # (N, act_dim) the actions encoded; None: no term (align)
     episode: np.ndarray  # (N,) bank episodes
     t: np.ndarray  # (N,) steps within them
-    held: bool  # before the shaping start: the term is 0
+    weight: float  # the term's weight (LatentShaping.clock): 0 before the start, after the stop
     done: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (N,)
 
 
@@ -410,7 +431,7 @@ class ShapedBatchedEnv(BatchedEnv):
         :meth:`step` would have added to their rewards (tests/test_shaping_cache.py)."""
         pending, self._pending = self._pending, []
         terms = np.zeros((len(pending), self.num_envs))
-        shaped = [k for k, p in enumerate(pending) if p.encoded is not None and not p.held]
+        shaped = [k for k, p in enumerate(pending) if p.encoded is not None and p.weight > 0.0]
         if shaped:
             n = self.num_envs
             values = self.shaping.values(
@@ -421,7 +442,8 @@ class ShapedBatchedEnv(BatchedEnv):
                 n,
             ).reshape(len(shaped), n)
             for row, k in enumerate(shaped):
-                terms[k] = values[row]
+                w = pending[k].weight
+                terms[k] = values[row] if w == 1.0 else w * values[row]
         if self.shaping.form == "align":
             return terms
         previous = self._previous
@@ -484,14 +506,14 @@ class ShapedBatchedEnv(BatchedEnv):
         pending = None
         shaping = np.zeros(self.num_envs)
         if guide is not None:  # no reward term: the context of PPO's loss on the mean
-            self.shaping.held(self.num_envs)  # counted as shaped (align has no start)
+            self.shaping.clock(self.num_envs)  # counted as shaped (align has no start)
             context = guide.context(self._obs, self._episode, self._t)
             if self._deferred:  # a step with no term: deferred_terms gives it 0
-                pending = _PendingStep(self._obs, None, self._episode, self._t, held=False)
+                pending = _PendingStep(self._obs, None, self._episode, self._t, weight=0.0)
         elif self._deferred:  # the term comes later, for the whole rollout at once
-            held = self.shaping.held(self.num_envs)
+            weight = self.shaping.clock(self.num_envs)
             pending = _PendingStep(
-                self._obs.copy(), encoded, self._episode.copy(), self._t.copy(), held
+                self._obs.copy(), encoded, self._episode.copy(), self._t.copy(), weight
             )
         else:
             value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
