@@ -180,20 +180,6 @@ def test_a_shaping_stop_anneals_the_term_linearly_to_zero(shaping: LatentShaping
             LatentShaping(shaping.model, shaping.bank, 0.1, idx, **options)
 
 
-def test_shaped_ppo_with_a_stop_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
-    # the weight falls over updates 1-4, across the checkpoint at update 2: a resume that
-    # lost the count of rows shaped would weigh the rest of the run otherwise
-
-    def make_env() -> ShapedBatchedEnv:
-        env = make_batched(TARGET_PUSH, 4)
-        annealed = LatentShaping(
-            shaping.model, shaping.bank, 0.1, env.robot_state_indices, stop=4 * 4 * 32
-        )
-        return ShapedBatchedEnv(env, annealed, MATCH_KEYS)
-
-    assert_ppo_resumes_exactly(make_env, RESUME_CFG, tmp_path)
-
-
 def test_pved_anneal_is_eq10_with_its_beta_gone_by_half_the_run(tmp_path: Path) -> None:
     model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
     model.write_bytes(b"model")  # hashed, not read
@@ -232,16 +218,18 @@ def test_the_log1p_form_is_minus_beta_times_log1p_of_the_same_distance(
         LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, form="sqrt")
 
 
-def test_shaped_ppo_with_a_start_resumes_exactly(shaping: LatentShaping, tmp_path: Path) -> None:
-    # the term starts at update 3, after the checkpoint at update 2: a resume that lost
-    # the count of rows shaped would start it an update late and end elsewhere
+@pytest.mark.parametrize("clock", [{"start": 3 * 4 * 32}, {"stop": 4 * 4 * 32}])
+def test_shaped_ppo_with_a_start_or_stop_resumes_exactly(
+    shaping: LatentShaping, tmp_path: Path, clock: dict[str, int]
+) -> None:
+    # the term starts at update 3, or its weight falls over updates 1-4, across the
+    # checkpoint at update 2: a resume that lost the count of rows shaped would start or
+    # weigh the term an update off and end elsewhere
 
     def make_env() -> ShapedBatchedEnv:
         env = make_batched(TARGET_PUSH, 4)
-        late = LatentShaping(
-            shaping.model, shaping.bank, 0.1, env.robot_state_indices, start=3 * 4 * 32
-        )
-        return ShapedBatchedEnv(env, late, MATCH_KEYS)
+        timed = LatentShaping(shaping.model, shaping.bank, 0.1, env.robot_state_indices, **clock)
+        return ShapedBatchedEnv(env, timed, MATCH_KEYS)
 
     assert_ppo_resumes_exactly(make_env, RESUME_CFG, tmp_path)
 
