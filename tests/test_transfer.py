@@ -180,15 +180,23 @@ def test_a_shaping_stop_anneals_the_term_linearly_to_zero(shaping: LatentShaping
             LatentShaping(shaping.model, shaping.bank, 0.1, idx, **options)
 
 
-def test_pved_anneal_is_eq10_with_its_beta_gone_by_half_the_run(tmp_path: Path) -> None:
+def _spec_maker(tmp_path: Path) -> Any:
+    """``spec(method, **options)``: reacher's transfer spec with placeholder model and bank
+    files (hashed, not read)."""
     model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
-    model.write_bytes(b"model")  # hashed, not read
+    model.write_bytes(b"model")
     bank.write_bytes(b"bank")
 
     def spec(method: str, **options: Any) -> Any:
         return transfer_spec(
             "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path, **options
         )
+
+    return spec
+
+
+def test_pved_anneal_is_eq10_with_its_beta_gone_by_half_the_run(tmp_path: Path) -> None:
+    spec = _spec_maker(tmp_path)
 
     plain, annealed = spec("pved"), spec("pved-anneal", steps=300_000)
     assert annealed.shaping_form == "eq10" and annealed.shaping_stop == 150_000
@@ -235,14 +243,7 @@ def test_shaped_ppo_with_a_start_or_stop_resumes_exactly(
 
 
 def test_the_shaping_options_are_in_the_run_config_only_when_set(tmp_path: Path) -> None:
-    model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
-    model.write_bytes(b"model")  # hashed, not read
-    bank.write_bytes(b"bank")
-
-    def spec(method: str, **options: Any) -> Any:
-        return transfer_spec(
-            "reacher", method, model_path=model, bank_path=bank, runs_root=tmp_path, **options
-        )
+    spec = _spec_maker(tmp_path)
 
     plain = spec("pved")
     late, logged = spec("pved", shaping_start=300_000), spec("pved", shaping_form="log1p")
