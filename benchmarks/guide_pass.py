@@ -33,7 +33,8 @@ from transfer_throughput import shaping_for, source_bank  # noqa: E402
 
 from pved.envs import env_id, make_batched  # noqa: E402
 from pved.spec import PRESETS, get_preset  # noqa: E402
-from pved.transfer.shaping import AlignGuide, ShapedBatchedEnv  # noqa: E402
+from pved.transfer.align_guide import AlignGuide  # noqa: E402
+from pved.transfer.shaping import ShapedBatchedEnv  # noqa: E402
 
 
 def per_call_us(call: Callable[[], object], calls: int) -> float:

@@ -28,14 +28,9 @@ from pved.experiments.stages import transfer_spec
 from pved.models import PVED, build_model
 from pved.rl.guide import GUIDE_CONTEXT, ActionGuide
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
+from pved.transfer.align_guide import ALIGN_ANNEAL, AlignGuide
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import (
-    ALIGN_ANNEAL,
-    AlignGuide,
-    LatentShaping,
-    LatentShapingWrapper,
-    ShapedBatchedEnv,
-)
+from pved.transfer.shaping import LatentShaping, LatentShapingWrapper, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank
 
 TARGET_PUSH = "pved/Reacher4Push-v0"

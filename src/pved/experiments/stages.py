@@ -65,8 +65,9 @@ from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.spec import get_preset, preset_for_agent, spec_identity
+from pved.transfer.align_guide import AlignGuide
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import AlignGuide, LatentShaping, ShapedBatchedEnv
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
     bank_dt,
     bank_from_episodes,

@@ -18,8 +18,9 @@ from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
 from pved.spec import get_preset, spec_identity
+from pved.transfer.align_guide import ALIGN_ANNEAL
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import ALIGN_ANNEAL, check_shaping_action, check_shaping_form
+from pved.transfer.shaping import check_shaping_action, check_shaping_form
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +38,7 @@ class TransferSpec:
         train_env_kwargs: env options of the training env (the oracle's full reward).
         shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
         beta: the shaping weight (Eq. 10).
-        align_anneal: the align form's anneal (:class:`pved.transfer.shaping.AlignGuide`).
+        align_anneal: the align form's anneal (:class:`pved.transfer.align_guide.AlignGuide`).
         shaping_stop: env steps by which a reward form's weight has fallen to 0 (the
             method's ``anneal`` of the run; 0: never, :class:`LatentShaping`).
     """

@@ -1,6 +1,6 @@
 """Eq. 10's distance to a PVED's target code, and its gradient with respect to the
 target's raw input, in numpy: what ``pved-align``'s guide computes at every PPO
-minibatch (:class:`pved.transfer.shaping.AlignGuide`).
+minibatch (:class:`pved.transfer.align_guide.AlignGuide`).
 
 Why by hand: the guide is D(q_φS(c | x_S), q_φT(c | x_T)) through the frozen target
 encoder, forward and backward to x_T, on minibatches of 64 rows. At that size torch's

@@ -39,7 +39,7 @@ class Method:
         beta_grid: the protocol's β grid for the method where a pair sets none for it
             (None: the pair's common grid).
         anneal: the share of the run over which the shaping's weight falls linearly to
-            0: the ``"align"`` form's loss (None: :data:`pved.transfer.shaping.ALIGN_ANNEAL`)
+            0: the ``"align"`` form's loss (None: :data:`pved.transfer.align_guide.ALIGN_ANNEAL`)
             or a reward form's term (None: never, as in the paper).
     """
 
@@ -92,7 +92,7 @@ METHODS: dict[str, Method] = {
     # encoded, Eq. 10's term cannot steer the mean action through PPO's gradient; this
     # method pays no term and instead adds β·log(1 + D) to PPO's loss, differentiated
     # through the target encoder with respect to the mean action, annealed to 0 by half
-    # the run (pved.transfer.shaping.AlignGuide).
+    # the run (pved.transfer.align_guide.AlignGuide).
     "pved-align": Method(
         "pved-align",
         "pved",
