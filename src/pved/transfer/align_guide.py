@@ -9,16 +9,34 @@ and against the same source codes (:class:`pved.transfer.shaping.LatentShaping`)
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import torch
 
-from pved.models.base import SharedRep
+from pved.models.base import SharedRep, SharedSpaceModel
 from pved.models.numpy_distance import TargetDistance, numpy_distance_covers
+from pved.transfer.source_cache import EncodedBank
 
-if TYPE_CHECKING:  # the guide reads a LatentShaping; shaping.py builds the guide
-    from pved.transfer.shaping import LatentShaping
+
+class GuideSource(Protocol):
+    """What the guide reads of :class:`pved.transfer.shaping.LatentShaping` (which builds
+    the guide, so the guide names the shape it needs rather than importing it back)."""
+
+    # read-only members, so any attribute of a compatible type satisfies them
+    @property
+    def model(self) -> SharedSpaceModel: ...
+    @property
+    def beta(self) -> float: ...
+    @property
+    def align_anneal(self) -> float: ...
+    @property
+    def time_scale(self) -> float: ...
+    @property
+    def robot_state_indices(self) -> np.ndarray: ...
+
+    def encoded(self, call_rows: int) -> EncodedBank: ...
+
 
 #: The share of a run's env steps over which the ``"align"`` form's weight falls from β to
 #: 0 (linearly) unless a method sets its own (``Method.anneal``): the second half of
@@ -50,7 +68,7 @@ class AlignGuide:
     """
 
     def __init__(
-        self, shaping: LatentShaping, low: np.ndarray, high: np.ndarray, num_envs: int
+        self, shaping: GuideSource, low: np.ndarray, high: np.ndarray, num_envs: int
     ) -> None:
         self.shaping = shaping
         self.low = torch.as_tensor(np.asarray(low, dtype=np.float32))
@@ -144,4 +162,4 @@ class AlignGuide:
         return float(loss.detach()), grad.numpy()
 
 
-__all__ = ["ALIGN_ANNEAL", "AlignGuide"]
+__all__ = ["ALIGN_ANNEAL", "AlignGuide", "GuideSource"]
