@@ -12,7 +12,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 import pved  # noqa: F401  (registers the env ids)
-from helpers import assert_ppo_resumes_exactly, push_bank_and_model
+from helpers import assert_ppo_resumes_exactly, placeholder_shaping_inputs, push_bank_and_model
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import PvedError
@@ -183,9 +183,7 @@ def test_a_shaping_stop_anneals_the_term_linearly_to_zero(shaping: LatentShaping
 def _spec_maker(tmp_path: Path) -> Any:
     """``spec(method, **options)``: reacher's transfer spec with placeholder model and bank
     files (hashed, not read)."""
-    model, bank = tmp_path / "model.pt", tmp_path / "bank.npz"
-    model.write_bytes(b"model")
-    bank.write_bytes(b"bank")
+    model, bank = placeholder_shaping_inputs(tmp_path)
 
     def spec(method: str, **options: Any) -> Any:
         return transfer_spec(
