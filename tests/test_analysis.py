@@ -408,7 +408,7 @@ def test_bound_matches_steps_on_the_banks_time_base() -> None:
     # pved bound pairs target step t with the source step the bank gives it in transfer:
     # on humanoid-ant (0.015 s against 0.05 s) Ant step 3 meets Humanoid step 10
     from pved.analysis.bound import match_steps
-    from pved.analysis.tsne import EpisodeRecord
+    from pved.analysis.rollouts import EpisodeRecord
 
     def episode(length: int) -> EpisodeRecord:
         return EpisodeRecord(

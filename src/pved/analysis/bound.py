@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pved.analysis.tsne import EpisodeRecord, model_inputs, run_paired_episodes
+from pved.analysis.rollouts import EpisodeRecord, model_inputs, run_paired_episodes
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.rl.policy import Policy

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.tsne import make_env, run_episode, shared_task_options
+from pved.analysis.rollouts import make_env, run_episode, shared_task_options
 from pved.checks import check_int, check_seed, check_writable
 from pved.errors import PvedError
 from pved.rl.policy import load_policy
