@@ -117,6 +117,24 @@ def test_missing_pairs_leave_the_goal_unjudged(tmp_path: Path) -> None:
     assert row.startswith(f"| {FOUR[3]} | score | 0.300 [") and "(15) | – | not run | – |" in row
 
 
+def test_missing_pairs_do_not_hold_back_a_goal_already_out_of_reach(tmp_path: Path) -> None:
+    # ahead on one, level on two: the fourth cannot make three ahead
+    pairs = {FOUR[0]: board(FOUR[0], [0.9, 0.95, 1.0])}
+    pairs.update({p: board(p, [0.2, 0.3, 0.4]) for p in FOUR[1:3]})
+    result = scoreboard("new", [write_protocol(tmp_path / "level", pairs)])
+    assert result["goal"]["verdict"] == "not reached"
+    assert result["goal"]["why"].endswith(f"whatever {FOUR[3]} show(s)")
+    # ahead on two, the other two missing: still open
+    two = {p: board(p, [0.9, 0.95, 1.0]) for p in FOUR[:2]}
+    assert scoreboard("new", [write_protocol(tmp_path / "two", two)])["goal"]["verdict"] == (
+        "not judged"
+    )
+    # behind on one pair: missed, however many are missing
+    behind = {FOUR[0]: board(FOUR[0], [0.0, 0.01, 0.02])}
+    result = scoreboard("new", [write_protocol(tmp_path / "behind", behind)])
+    assert result["goal"]["verdict"] == "not reached" and result["goal"]["behind"] == [FOUR[0]]
+
+
 def test_a_pair_the_method_skipped_keeps_pved_and_the_oracle(tmp_path: Path) -> None:
     ran = board(FOUR[0], [0.9, 0.95, 1.0])
     skipped = {

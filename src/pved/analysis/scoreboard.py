@@ -7,7 +7,8 @@ curve takes to reach PPO's final mean, against PPO's own steps. Beneath it, the 
 of the goal the project set itself (issue 51): the method is ahead of PPO (CI of the
 difference above 0) on at least :data:`AHEAD_NEEDED` of the four pairs and behind it (CI
 below 0) on none, and on those pairs its mean curve reaches PPO's final mean within
-:data:`SPEED_FRACTION` of PPO's steps. With fewer pairs than four the goal is not judged.
+:data:`SPEED_FRACTION` of PPO's steps. With fewer pairs than four the goal is not judged,
+unless it is already out of reach (a pair behind, or too few left to be ahead on).
 
 The comparison is ``pved claims``' test "beats" (:meth:`pved.analysis.judge.Judge.beats`:
 the same two-level bootstrap over source policies and PPO seeds, resamples and seed), so
@@ -203,16 +204,23 @@ def scoreboard(method: str, dirs: Sequence[str | Path]) -> dict[str, Any]:
         "needs": f"ahead of ppo on >= {AHEAD_NEEDED} of {len(FOUR)} pairs, behind on none, "
         f"reaching ppo's final within {SPEED_FRACTION:.0%} of its steps on those",
     }
-    if absent:
+    counts = (
+        f"ahead on {len(ahead)} of {len(FOUR)} (needs {AHEAD_NEEDED}), fast on "
+        f"{len(ahead_fast)} of those, behind on {len(behind)} (needs 0)"
+    )
+    # A missing pair can only add to the pairs ahead: where even all of them ahead and
+    # fast would not make the count, or a pair is already behind, the goal is missed now.
+    out_of_reach = bool(behind) or len(ahead_fast) + len(absent) < AHEAD_NEEDED
+    if absent and not out_of_reach:
         goal["verdict"] = "not judged"
         goal["why"] = f"no runs on {', '.join(absent)}"
+    elif absent:
+        goal["verdict"] = "not reached"
+        goal["why"] = f"{counts}, whatever {', '.join(absent)} show(s)"
     else:
         reached = len(ahead_fast) >= AHEAD_NEEDED and not behind
         goal["verdict"] = "reached" if reached else "not reached"
-        goal["why"] = (
-            f"ahead on {len(ahead)} of {len(FOUR)} (needs {AHEAD_NEEDED}), fast on "
-            f"{len(ahead_fast)} of those, behind on {len(behind)} (needs 0)"
-        )
+        goal["why"] = counts
     budgets = sorted({r["budget"] for r in rows})
     return {"method": method, "budgets": budgets, "rows": rows, "goal": goal}
 
