@@ -1043,6 +1043,25 @@ def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
     assert len(paper_runs) == 15 and len(wide_runs) == 81
 
 
+def test_the_screen_budget_never_runs_a_seed_the_other_budgets_judge(tmp_path: Path) -> None:
+    quick = ProtocolPlan(["reacher"], ["ppo"], "quick", tmp_path / "quick")
+    screen = ProtocolPlan(["reacher"], ["ppo"], "screen", tmp_path / "screen")
+    assert screen.describe()["transfer_steps"] == quick.describe()["transfer_steps"]
+    assert get_budget("screen").tuning_seeds == get_budget("quick").tuning_seeds
+
+    def seeds(budget: str) -> set[int]:
+        plan = ProtocolPlan(["reacher"], ["ppo"], budget, tmp_path / budget)
+        # a reference runs evaluation seed s as s, s+1, s+2; a shaped method as s, 3 times
+        return {int(j.kwargs["seed"]) for j in plan.expand({})}
+
+    judged = set().union(*(seeds(b) for b in ("quick", "paper", "paper-wide")))
+    judged |= {
+        int(s) for b in ("quick", "paper", "paper-wide") for s in get_budget(b).evaluation_seeds
+    }
+    screened = seeds("screen")
+    assert len(screened) == 15 and not screened & judged
+
+
 def test_a_selection_made_elsewhere_is_evaluated_without_tuning(tmp_path: Path) -> None:
     screen = Path(__file__).resolve().parents[1] / "docs/protocol/reacher-quick-align"
     fixed = fixed_selections(screen, ["reacher"], ["pved-align", "ppo"], "paper")

@@ -27,6 +27,10 @@ EVALUATION_SEEDS: tuple[int, ...] = (20000, 40000, 60000, 80000, 100000)
 #: The ``paper-wide`` budget's evaluation seeds: the paper's five, then 22 more on the
 #: same spacing (27 x 3 source policies = 81 runs a method).
 WIDE_EVALUATION_SEEDS: tuple[int, ...] = tuple(20000 * k for k in range(1, 28))
+#: The ``screen`` budget's evaluation seeds: disjoint from every evaluation seed above and
+#: from the seeds s+1, s+2 the references run a source-less seed s as, so that choosing a
+#: method on a screen never looks at the runs the paper's budget later judges (issue 64).
+SCREEN_SEEDS: tuple[int, ...] = (11000, 13000, 15000, 17000, 19000)
 
 
 @dataclass(frozen=True)
@@ -300,6 +304,15 @@ BUDGETS: dict[str, ProtocolBudget] = {
     ),
     # the full design with three tuning seeds and shorter runs
     "quick": ProtocolBudget(name="quick", tuning_seeds=TUNING_SEEDS[:3]),
+    # quick's design and steps, evaluated on seeds the paper's budget never uses: where a
+    # method beyond the paper is chosen before its paper-budget runs (pre-registration,
+    # docs/decisions/protocol.md); quick's tuning runs are the same runs, so they copy
+    "screen": ProtocolBudget(
+        name="screen",
+        tuning_seeds=TUNING_SEEDS[:3],
+        evaluation_seeds=SCREEN_SEEDS,
+        steps_of="quick",
+    ),
     # paper IV.A: 5 tuning seeds, 3 source policies x 5 evaluation seeds, 3 model inits
     "paper": ProtocolBudget(name="paper"),
     # the paper's protocol with 81 evaluation runs a method instead of 15: enough to tell
