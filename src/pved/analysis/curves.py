@@ -10,7 +10,7 @@ from __future__ import annotations
 import io
 import json
 import math
-from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -365,15 +365,20 @@ def reach_cell(method_summary: Mapping[str, Any], baseline: str) -> str:
 
 
 def read_eval_points(metrics_path: Path, key: str) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, values) of the records in ``metrics.jsonl`` that carry ``key``, by step.
+    """(steps, values) of the records in ``metrics.jsonl`` that carry ``key``, by step
+    (:func:`eval_points`)."""
+    lines = Path(metrics_path).read_text().splitlines()
+    return eval_points((json.loads(line) for line in lines if line.strip()), key)
+
+
+def eval_points(records: Iterable[Mapping[str, Any]], key: str) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, values) of the ``records`` (``metrics.jsonl``'s rows, or a committed
+    record's ``curve``) that carry ``key``, by step.
 
     A step logged twice keeps its last record: runs resumed by pved before 0de3764 logged
     the steps they redid again (``Run.drop_metrics_after`` prevents it now)."""
     last: dict[int, float] = {}
-    for line in Path(metrics_path).read_text().splitlines():
-        if not line.strip():
-            continue
-        record = json.loads(line)
+    for record in records:
         if record.get(key) is not None:
             last[int(record["step"])] = float(record[key])
     steps = sorted(last)
