@@ -29,13 +29,16 @@ from pved.experiments.protocol_plan import (
     finished_results,
     fixed_selections,
     plan_entry,
+    relative_plan,
     transfer_run_method,
 )
 from pved.experiments.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
 from pved.models.train import shared_subspace_collapsed
+from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 from pved.spec import get_preset
 from pved.transfer.methods import NO_TRANSFER, ORACLE, get_method
+from pved.transfer.shaping import GUIDE_FORMS
 
 if TYPE_CHECKING:
     from pved.analysis.curves import Panel
@@ -147,9 +150,11 @@ def run_protocol(
     description = plan.describe()
     if plan_path.exists():
         try:
-            existing = json.loads(plan_path.read_text())
+            written = json.loads(plan_path.read_text())
         except json.JSONDecodeError:
             raise PvedError(f"{plan_path} is corrupt; remove it or use another --out") from None
+        # a plan written before paths in records were relative: the same plan
+        existing = relative_plan(written) if isinstance(written, dict) else written
         current = json.loads(json.dumps(description))
         if {k: existing.get(k) for k in description} != current:
             if not _widens(existing, current):
@@ -170,6 +175,8 @@ def run_protocol(
                 "its finished runs are kept",
                 file=sys.stderr,
             )
+        elif existing != written:  # the same plan, its paths now written relative
+            atomic_write_json(plan_path, existing)
     else:
         plan.out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(plan_path, {**description, "pved_version": __version__})
@@ -314,7 +321,9 @@ def _summarize(
                         "seed": j.kwargs["seed"],
                         "source_policy": j.tags["source_policy"],
                         metric: float(results[j.key][f"final/{metric}"]),
-                        "result": str(j.run_dir / "result.json") if j.run_dir else None,
+                        "result": record_path(j.run_dir / "result.json", out)
+                        if j.run_dir
+                        else None,
                     }
                     for j in done
                 ]
@@ -356,7 +365,7 @@ def _with_ci(value: float, ci: Sequence[float]) -> str:
 
 def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, str]:
     """The summary table's two reward-scale cells of one method (``–`` without a shaping
-    term; ``none`` for the align form, which pays none): the Eq. 10 term with its
+    term; ``none`` for a guide form, align or prior, which pays none): the Eq. 10 term with its
     distance D (a KL in nats, or a point-code model's squared distance; only for the
     ``eq10`` form not annealed, where D = term / −β) and the env's reward, each at the
     first and last rollout."""
@@ -366,7 +375,7 @@ def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, s
     first, last = scale["shaping_first"], scale["shaping_last"]
     shaping = f"{first:.3g} → {last:.3g}"
     recipe = get_method(method)
-    if recipe.shaping_form == "align":  # its term is in the loss, not the reward
+    if recipe.shaping_form in GUIDE_FORMS:  # its term is in the loss, not the reward
         shaping = "none (a loss on the mean action)"
     beta = method_summary.get("beta")
     # D = term / −β only where the weight is β all along (not an annealed term)

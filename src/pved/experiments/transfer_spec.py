@@ -15,12 +15,14 @@ from typing import Any
 from pved.checks import check_int, given, named_options
 from pved.errors import PvedError
 from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
+from pved.models.registry import MODELS
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
 from pved.spec import get_preset, spec_identity
 from pved.transfer.align_guide import ALIGN_ANNEAL
 from pved.transfer.methods import get_method
-from pved.transfer.shaping import check_shaping_action, check_shaping_form
+from pved.transfer.prior_guide import check_prior_model
+from pved.transfer.shaping import GUIDE_FORMS, check_shaping_action, check_shaping_form
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,7 +40,7 @@ class TransferSpec:
         train_env_kwargs: env options of the training env (the oracle's full reward).
         shaping_inputs: (model, source bank) of a shaped run; None for ``ppo``/``oracle``.
         beta: the shaping weight (Eq. 10).
-        align_anneal: the align form's anneal (:class:`pved.transfer.align_guide.AlignGuide`).
+        align_anneal: a guide form's anneal (``pved.transfer.shaping.GUIDE_FORMS``).
         shaping_stop: env steps by which a reward form's weight has fallen to 0 (the
             method's ``anneal`` of the run; 0: never, :class:`LatentShaping`).
     """
@@ -97,6 +99,8 @@ def transfer_spec(
     align_anneal = ALIGN_ANNEAL if recipe.anneal is None else recipe.anneal
     check_shaping_form(shaping_form)
     check_shaping_action(shaping_action)
+    if shaping_form == "prior" and recipe.model is not None:  # before any file is read
+        check_prior_model(MODELS[recipe.model])
     check_int("--shaping-start", shaping_start, low=0)
     preset = get_preset(pair)
     pair = preset.name
@@ -175,7 +179,7 @@ def transfer_spec(
             config["shaping_start"] = shaping_start
         if shaping_form != "eq10":
             config["shaping_form"] = shaping_form
-        if shaping_form == "align":
+        if shaping_form in GUIDE_FORMS:
             config["align_anneal"] = align_anneal
         elif recipe.anneal is not None:  # a reward form's term annealed (pved-anneal)
             if shaping_form == "potential":

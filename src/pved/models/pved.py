@@ -396,7 +396,17 @@ class PVED(SharedSpaceModel):
         """Mean of p_θ'S(x_T | c_S) at the mean of q_φT(c_S | x_T), raw units (Eq. 8):
         (B, D_T) -> (B, W_T)."""
         q_c = self.encoder_T.shared(self.features_target(x_T))
-        return self.features_to_raw_target(self.decoder_S_prime(q_c.mean))
+        return self.decode_target_shared(q_c.mean)
+
+    @torch.no_grad()
+    def decode_target_shared(self, c: torch.Tensor) -> torch.Tensor:
+        """Mean of p_θ'S(x_T | c) (Eq. 8) at shared codes ``c`` (B, C), raw units: (B, W_T).
+
+        Trained on the target's own code q_φT(c_S | x_T); Eq. 7 pulls the source's code
+        q_φS(c_T | x_S) of a paired row onto it, so at the source's code it gives the
+        target state-action the model pairs with the source's (``pved-prior``,
+        :mod:`pved.transfer.prior_guide`)."""
+        return self.features_to_raw_target(self.decoder_S_prime(c))
 
     # -- the objective (Eq. 9) -----------------------------------------------------------
     def loss(

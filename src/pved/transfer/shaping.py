@@ -38,6 +38,7 @@ from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
 from pved.rl.guide import GUIDE_CONTEXT
 from pved.transfer.align_guide import ALIGN_ANNEAL, AlignGuide
+from pved.transfer.prior_guide import PriorGuide, check_prior_model
 from pved.transfer.source_bank import SourceBank
 from pved.transfer.source_cache import (
     MIN_BATCH_ROWS,
@@ -51,8 +52,12 @@ from pved.transfer.source_cache import (
 # "potential" takes Φ = −β·D as a potential and pays Φ_t − Φ_{t−1}/γ (outside the paper;
 # docs/decisions/transfer.md, "A potential-based Eq. 10"); "align" adds no reward term
 # but a loss on the policy's mean action, β·log(1 + D), annealed to 0 by half the run
-# (outside the paper; :class:`AlignGuide`).
-SHAPING_FORMS = ("eq10", "log1p", "potential", "align")
+# (outside the paper; :class:`AlignGuide`); "prior" adds no reward term but pulls the mean
+# action towards the source's behaviour decoded into the target's action (outside the
+# paper; :class:`PriorGuide`).
+SHAPING_FORMS = ("eq10", "log1p", "potential", "align", "prior")
+#: The forms that pay no reward term but give PPO a loss on the mean action (an ActionGuide).
+GUIDE_FORMS = ("align", "prior")
 
 # Which target action Eq. 10 encodes: "mean" is the policy's mean action at s_T (what the
 # pairs and the bank record), "taken" the sampled, clipped action the env was stepped with.
@@ -118,8 +123,8 @@ class LatentShaping:
             action, given to the wrapper before each step; the default) or ``"taken"``
             (the action the env is stepped with).
         gamma: the learner's discount γ; only the ``"potential"`` form reads it.
-        align_anneal: the share of the run over which the ``"align"`` form's weight falls
-            to 0 (:class:`AlignGuide`); only that form reads it.
+        align_anneal: the share of the run over which a guide form's weight falls to 0
+            (:data:`GUIDE_FORMS`: :class:`AlignGuide`, :class:`PriorGuide`); only they read it.
     """
 
     def __init__(
@@ -139,11 +144,13 @@ class LatentShaping:
         if start < 0:
             raise PvedError(f"the shaping start must be >= 0 env steps, not {start}")
         check_shaping_form(form)
-        if form == "align" and (start or stop):
+        if form in GUIDE_FORMS and (start or stop):
             raise PvedError(
-                "the align form has no shaping start or stop (its weight anneals with PPO's "
+                f"the {form} form has no shaping start or stop (its weight anneals with PPO's "
                 "progress instead: align_anneal)"
             )
+        if form == "prior":  # refused here, before the run, not when PPO builds the guide
+            check_prior_model(type(model))
         if stop < 0 or (stop and stop <= start):
             raise PvedError(f"the shaping stop must be 0 or after the start ({start}), not {stop}")
         if stop and form == "potential":
@@ -264,7 +271,7 @@ class _PendingStep:
     """One step's inputs to a deferred term (:meth:`ShapedBatchedEnv.deferred_terms`)."""
 
     obs: np.ndarray  # (N, obs_dim) the observations the step was taken from
-    encoded: np.ndarray | None  # (N, act_dim) the actions encoded; None: no term (align)
+    encoded: np.ndarray | None  # (N, act_dim) the actions encoded; None: no term (a guide form)
     episode: np.ndarray  # (N,) bank episodes
     t: np.ndarray  # (N,) steps within them
     weight: float  # the term's weight (LatentShaping.clock): 0 before the start, after the stop
@@ -290,7 +297,7 @@ class ShapedBatchedEnv(BatchedEnv):
         self._mean: np.ndarray | None = None
         # each copy's last value of LatentShaping.reward (the potential form's Φ_{t−1})
         self._previous = np.zeros(self.num_envs)
-        self._guide: AlignGuide | None = None
+        self._guide: AlignGuide | PriorGuide | None = None
         # deferred terms (defer_terms): each step's inputs, kept until deferred_terms
         self._deferred = False
         self._pending: list[_PendingStep] = []
@@ -320,7 +327,7 @@ class ShapedBatchedEnv(BatchedEnv):
             for row, k in enumerate(shaped):
                 w = pending[k].weight
                 terms[k] = values[row] if w == 1.0 else w * values[row]
-        if self.shaping.form == "align":
+        if self.shaping.form in GUIDE_FORMS:
             return terms
         previous = self._previous
         for k, p in enumerate(pending):
@@ -332,13 +339,15 @@ class ShapedBatchedEnv(BatchedEnv):
         return terms
 
     @property
-    def action_guide(self) -> AlignGuide | None:
-        """The ``"align"`` form's loss on the mean action (PPO reads it; None otherwise)."""
-        if self.shaping.form != "align":
+    def action_guide(self) -> AlignGuide | PriorGuide | None:
+        """A guide form's loss on the mean action (:data:`GUIDE_FORMS`; PPO reads it;
+        None for a reward form)."""
+        if self.shaping.form not in GUIDE_FORMS:
             return None
         if self._guide is None:
             space = self.single_action_space
-            self._guide = AlignGuide(self.shaping, space.low, space.high, self.num_envs)
+            guide = AlignGuide if self.shaping.form == "align" else PriorGuide
+            self._guide = guide(self.shaping, space.low, space.high, self.num_envs)
         return self._guide
 
     def set_mean_actions(self, mean: np.ndarray) -> None:
@@ -382,7 +391,7 @@ class ShapedBatchedEnv(BatchedEnv):
         pending = None
         shaping = np.zeros(self.num_envs)
         if guide is not None:  # no reward term: the context of PPO's loss on the mean
-            self.shaping.clock(self.num_envs)  # counted as shaped (align has no start)
+            self.shaping.clock(self.num_envs)  # counted as shaped (a guide has no start)
             context = guide.context(self._obs, self._episode, self._t)
             if self._deferred:  # a step with no term: deferred_terms gives it 0
                 pending = _PendingStep(self._obs, None, self._episode, self._t, weight=0.0)
@@ -487,10 +496,10 @@ class LatentShapingWrapper(
             self, shaping=shaping, match_keys=match_keys, mean_action=mean_action
         )
         gym.Wrapper.__init__(self, env)
-        if shaping.form == "align":
+        if shaping.form in GUIDE_FORMS:
             raise PvedError(
-                "the align form is a loss on the policy's mean action that pved's PPO adds; "
-                "a Gymnasium wrapper can only change the reward (use ShapedBatchedEnv)"
+                f"the {shaping.form} form is a loss on the policy's mean action that pved's "
+                "PPO adds; a Gymnasium wrapper can only change the reward (use ShapedBatchedEnv)"
             )
         if shaping.action == "mean" and mean_action is None:
             raise PvedError(
