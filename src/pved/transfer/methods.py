@@ -115,6 +115,25 @@ METHODS: dict[str, Method] = {
         beta_grid=(1.0, 0.1, 0.01),
         anneal=0.25,
     ),
+    # Beyond the paper (docs/decisions/transfer.md, "pved-prior"): not a distance between
+    # codes but the action PVED's c-only decoder p_θ'S (Eq. 8) gives at the source's code
+    # of the matched moment; the mean action is pulled towards it, the weight annealed to
+    # 0 by half the run as pved-align's (pved.transfer.prior_guide.PriorGuide).
+    "pved-prior": Method(
+        "pved-prior",
+        "pved",
+        shaping_form="prior",
+        paper=False,
+        summary="beyond the paper: the source's behaviour decoded into the target's action "
+        "(Eq. 8) as a prior on the mean action, annealed",
+        # set before any run: per row and action dim the loss's gradient on μ is
+        # 2β·gap/(h²·A·B), a gap of order half a half-box (h) at the start; PPO's surrogate
+        # gives μ about |adv|·|a − μ|/(σ²·B) ≈ 1/B with normalised advantages and σ ≈ 1.
+        # On a 4-dim action β = 10 lets the prior lead (2.5/B), 1 gives a quarter of
+        # PPO's pull and 0.1 a nudge; the grid sits a decade above pved-align's
+        beta_grid=(10.0, 1.0, 0.1),
+        anneal=0.5,
+    ),
     # Beyond the paper (docs/decisions/transfer.md, "pved-anneal"): the paper's Eq. 10 term
     # with β falling linearly to 0 by half the run (issue 51's "β annealed to zero"). The
     # term guides while the target knows nothing, where it paid off (walker-hopper); the
