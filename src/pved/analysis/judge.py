@@ -31,11 +31,18 @@ interval: p < 0.05 where the interval decides the part).
 Per run (a seed x source policy of one method on one pair):
 
 - final score: its metric in ``summary.json`` (the protocol's final evaluation);
-- early score: the mean of its evaluation points (``metrics.jsonl``) at steps <= 25% of
-  its last evaluation step;
-- drop: its best evaluation value minus its last one (>= 0; lower is more stable).
+- early score: the mean of its evaluation points at steps <= 25% of its last evaluation
+  step;
+- drop: its best evaluation value minus its last one (>= 0; lower is more stable);
+- the transfer measures of Taylor & Stone (2009) (:mod:`pved.analysis.transfer_measures`):
+  ``auc``, ``jumpstart`` (its first evaluation point) and ``reach`` (the steps its curve
+  takes to reach plain PPO's final, :func:`ppo_final_point`).
 
-Only files are read: ``DIR/summary.json`` and each run's ``metrics.jsonl``.
+The scores off a run's curve are :mod:`pved.analysis.run_curves`': its ``metrics.jsonl``,
+or in a published protocol directory its curve in the committed record; a run with
+neither has "no curves", and no score that needs one.
+
+Only files are read: ``DIR/summary.json``, each run's ``metrics.jsonl`` or the record.
 """
 
 from __future__ import annotations
@@ -50,7 +57,12 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import bootstrap_difference, read_eval_points
+from pved.analysis.curves import bootstrap_difference
+from pved.analysis.run_curves import EARLY_FRACTION as EARLY_FRACTION
+from pved.analysis.run_curves import curve_score, run_curve, steps_to_threshold
+from pved.analysis.run_curves import drop as drop
+from pved.analysis.run_curves import early_score as early_score
+from pved.analysis.run_curves import eval_curve as eval_curve
 from pved.errors import PvedError
 
 HOLDS, NOT_HOLD, UNDECIDED = "holds", "does not hold", "undecided"
@@ -60,8 +72,6 @@ REPS = 20000
 """Bootstrap resamples per interval."""
 SEED = 0
 """Seed of every interval's resampling (each comparison is reproducible on its own)."""
-EARLY_FRACTION = 0.25
-"""Early score: evaluation points at steps <= this fraction of the run's last step."""
 FAIL_FRACTION = 0.10
 """PPO "fails completely" below, and "still learns" above, this fraction of the oracle."""
 MARGIN_FRACTION = 0.10
@@ -90,6 +100,9 @@ FOUR = tuple(PAIR_TITLES)
 """The paper's four pairs, in Fig. 3's order."""
 
 SCORES = ("final", "early", "drop")
+AA_REFERENCE = "ppo-aa"
+"""The A/A reference: plain PPO again, on seeds no other method uses
+(:data:`pved.transfer.methods.AA_REFERENCE`; not imported here: it pulls in torch)."""
 
 
 def num(x: float) -> str:
@@ -184,7 +197,7 @@ class PairSummary:
     directory: Path
     budget: str
     methods: dict[str, dict[str, Any]]
-    _cache: dict[tuple[str, str], np.ndarray | str] = field(default_factory=dict)
+    _cache: dict[tuple[str, str], Any] = field(default_factory=dict)
 
 
 def load_summary(directory: Path) -> dict[str, Any]:
@@ -248,39 +261,50 @@ def load_pairs(dirs: Sequence[Path]) -> dict[str, PairSummary]:
     return pairs
 
 
-def _run_metrics(pair: PairSummary, run: dict[str, Any]) -> Path | None:
-    """A run's metrics.jsonl: next to its result.json, or under DIR/runs/KEY when the
-    protocol directory has moved since."""
-    candidates = []
-    if isinstance(run.get("result"), str):
-        candidates.append(Path(run["result"]).parent / "metrics.jsonl")
-    if isinstance(run.get("key"), str):
-        candidates.append(pair.directory / "runs" / run["key"] / "metrics.jsonl")
-    return next((p for p in candidates if p.is_file()), None)
+def _run_curves(p: PairSummary, method: str) -> list[tuple[np.ndarray, np.ndarray]] | str:
+    """Every run's curve of ``method`` on ``p``
+    (:func:`pved.analysis.run_curves.run_curve`), or the first run's reason for having
+    none."""
+    key = (method, "curves")
+    if key not in p._cache:
+        curves = [run_curve(p.directory, p.metric, r) for r in p.methods[method]["runs"]]
+        bad = next((c for c in curves if isinstance(c, str)), None)
+        p._cache[key] = bad if bad is not None else curves
+    out: list[tuple[np.ndarray, np.ndarray]] | str = p._cache[key]
+    return out
 
 
-def eval_curve(metrics_path: Path, metric: str) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, values) of a run's ``eval/<metric>`` points, one per step
-    (:func:`pved.analysis.curves.read_eval_points`); PvedError if unreadable."""
-    try:
-        return read_eval_points(metrics_path, f"eval/{metric}")
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
-        raise PvedError(f"{metrics_path}: unreadable metrics ({_one_line(exc)})") from exc
+def ppo_final_point(pairs: dict[str, PairSummary], pair: str) -> float | str:
+    """Plain PPO's final on ``pair`` as its mean curve gives it (the mean of its runs'
+    last evaluation points: the threshold of ``reach``, as of ``steps_to_ppo_final`` in
+    the summary), or why there is none: no PPO curves, or a PPO whose mean curve ends at
+    or below its start (every curve would reach it at once)."""
+    p = pairs.get(pair)
+    if p is None or not (p.methods.get("ppo") or {}).get("runs"):
+        return f"no runs of ppo on {pair}: no final to reach"
+    curves = _run_curves(p, "ppo")
+    if isinstance(curves, str):
+        return curves
+    first = float(np.mean([v[0] for _, v in curves]))
+    last = float(np.mean([v[-1] for _, v in curves]))
+    if not last > first:
+        return f"ppo did not improve on {pair} ({num(first)} -> {num(last)}): no final to reach"
+    return last
 
 
-def early_score(steps: np.ndarray, values: np.ndarray) -> float:
-    """Mean of the evaluation values at steps <= 25% of the last evaluation step."""
-    return float(values[steps <= EARLY_FRACTION * steps[-1]].mean())
-
-
-def drop(values: np.ndarray) -> float:
-    """Best evaluation value minus the last one (>= 0)."""
-    return float(values.max() - values[-1])
+def reached(pairs: dict[str, PairSummary], pair: str, method: str) -> int | None:
+    """How many of ``method``'s runs on ``pair`` reach PPO's final (None: not known)."""
+    p, threshold = pairs.get(pair), ppo_final_point(pairs, pair)
+    curves = _run_curves(p, method) if p is not None and method in p.methods else "none"
+    if isinstance(threshold, str) or isinstance(curves, str):
+        return None
+    return sum(bool(np.any(v >= threshold)) for _, v in curves)
 
 
 def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -> np.ndarray | str:
-    """Per-run ``score`` (final, early or drop) of ``method`` on ``pair`` as (runs,), or
-    the reason there are none."""
+    """Per-run ``score`` (final, or one of
+    :data:`pved.analysis.run_curves.CURVE_SCORES`) of ``method`` on ``pair`` as (runs,),
+    or the reason there are none."""
     p = pairs.get(pair)
     runs = (p.methods.get(method) or {}).get("runs", []) if p is not None else []
     if p is None or not runs:
@@ -293,22 +317,14 @@ def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -
     elif score == "final":
         out = np.asarray([float(r[p.metric]) for r in runs])
     else:
-        values = []
-        for r in runs:
-            path = _run_metrics(p, r)
-            if path is None:
-                out = f"no metrics.jsonl of run {r.get('key')} of {method} on {pair}"
-                break
-            steps, curve = eval_curve(path, p.metric)
-            if not steps.size:
-                out = f"no eval/{p.metric} points in {path}"
-                break
-            if not np.all(np.isfinite(curve)):
-                out = f"NaN or infinite eval/{p.metric} in {path}"
-                break
-            values.append(early_score(steps, curve) if score == "early" else drop(curve))
+        curves = _run_curves(p, method)
+        threshold = ppo_final_point(pairs, pair) if score == "reach" else 0.0
+        if isinstance(curves, str) or isinstance(threshold, str):
+            out = curves if isinstance(curves, str) else str(threshold)
+        elif score == "reach":
+            out = np.asarray([steps_to_threshold(s, v, threshold) for s, v in curves])
         else:
-            out = np.asarray(values)
+            out = np.asarray([curve_score(score, s, v) for s, v in curves])
     p._cache[(method, score)] = out
     return out
 
