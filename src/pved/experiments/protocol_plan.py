@@ -53,6 +53,7 @@ from pved.experiments.runner import Job, read_job_result
 from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
 from pved.experiments.transfer_spec import eq10_config
 from pved.pretrained import pretrained_policy_path, shipped_seeds
+from pved.record_paths import record_path
 from pved.runs import run_path
 from pved.spec import get_preset, preset_for_agent
 from pved.transfer.methods import REFERENCE_METHODS, get_method
@@ -186,7 +187,7 @@ class ProtocolPlan:
         # what each selection chose, filled in by expand() as results arrive
         self.selection: dict[str, dict[str, Any]] = {}
         # selections made elsewhere (fixed_selections): pair -> method -> beta, init, ...
-        self.fixed = {p: dict(m) for p, m in (fixed or {}).items()}
+        self.fixed = relative_selections(fixed or {})
 
     # -- plan file -------------------------------------------------------------------
 
@@ -661,12 +662,44 @@ def fixed_selections(
             fixed.setdefault(pair, {})[method] = {
                 "beta": float(state["beta"]),
                 "init": int(state["init"]),
-                "protocol": str(directory),
+                "protocol": record_path(directory),
                 "budget": str(plan.get("name")),
                 "tuning_seeds": tuning,
                 "candidates": state.get("candidates", []),
             }
     return fixed
+
+
+def relative_selections(fixed: Mapping[str, Any]) -> dict[str, Any]:
+    """``fixed`` (:func:`fixed_selections`) with the protocol each selection was made in
+    as a relative path (:func:`pved.record_paths.record_path`): a plan written before
+    paths in records were relative names it by this machine's absolute path. Entries of
+    another shape are left as they are, for the plan's own checks to refuse."""
+
+    def relative(state: Any) -> Any:
+        if isinstance(state, Mapping) and isinstance(state.get("protocol"), str):
+            return {**state, "protocol": record_path(state["protocol"])}
+        return dict(state) if isinstance(state, Mapping) else state
+
+    return {
+        pair: {m: relative(s) for m, s in methods.items()}
+        if isinstance(methods, Mapping)
+        else methods
+        for pair, methods in fixed.items()
+    }
+
+
+def relative_plan(plan: Mapping[str, Any]) -> dict[str, Any]:
+    """A ``protocol.json`` as this version writes it (:func:`relative_selections`), its
+    earlier plans too: what a restart compares and what a summary or archive copies."""
+    out = dict(plan)
+    if isinstance(out.get("selection_from"), dict):
+        out["selection_from"] = relative_selections(out["selection_from"])
+    if isinstance(out.get("earlier_plans"), list):
+        out["earlier_plans"] = [
+            relative_plan(p) if isinstance(p, dict) else p for p in out["earlier_plans"]
+        ]
+    return out
 
 
 def finished_results(plan: ProtocolPlan) -> dict[str, Any]:
