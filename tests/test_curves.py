@@ -1,4 +1,5 @@
-"""Learning-curve statistics: every interval is rliable's 95% percentile bootstrap over runs."""
+"""Learning-curve statistics: the two-level bootstrap of a mean and of a difference, and the
+one-level (rliable) intervals of the IQM and the curve bands."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import pytest
 from scipy import stats
 
 from pved.analysis.curves import (
+    REPS,
     Curve,
     Panel,
     bootstrap_difference,
+    bootstrap_mean,
     bootstrap_summary,
     load_curve,
     panels_figure,
@@ -261,7 +264,7 @@ def test_sources_that_differ_widen_the_interval_beyond_the_seeds() -> None:
     both = bootstrap_difference(a, b, seeds_a=seeds, seeds_b=b_seeds, sources_a=sources)
     assert seed_only["diff"] == pytest.approx(both["diff"]) == pytest.approx(1.1 / 3 - 0.2)
     assert seed_only["diff_ci"] == pytest.approx([1.1 / 3 - 0.2] * 2)  # excludes 0
-    assert seed_only["tests"][0]["p"] == pytest.approx(2 / 2001)
+    assert seed_only["tests"][0]["p"] == pytest.approx(2 / (REPS + 1))
     lo, hi = both["diff_ci"]
     assert lo < 0 < hi and width(both["diff_ci"]) > 0.5
     # the k/3 means of three draws: 0.0 to 1.0, the middle 95% from the weakest to the best
@@ -318,6 +321,27 @@ def test_bootstrap_p_values_of_a_bar() -> None:
     g = bootstrap_difference(np.array([0.0, 1.0]), np.zeros(2), reps=20000, group_bars=(0.5,))
     assert g["a"]["tests"][0]["le"] == pytest.approx(0.75, abs=0.01)
     assert "tests" not in d["a"]
+
+
+def test_a_methods_interval_is_the_same_whatever_it_is_compared_with() -> None:
+    """bootstrap_mean gives one method one interval: the one it gets in a comparison where
+    its draws come first, not the one it gets drawn after another shaped method's sources
+    (reacher's 15 PPO runs once carried lower bounds 0.199 and 0.140 on two pages)."""
+    ppo = np.array([1.0, 0.0, 0.0, 0.036, 0.0, 0.994, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0])
+    shaped, seeds, sources = crossed([0.0, 0.2, 0.9], [0.0, 0.1, 0.0, 0.0, 0.0])
+    alone = bootstrap_mean(ppo, seeds=list(range(15)))
+    assert alone == bootstrap_mean(ppo, seeds=list(range(15)))  # a rerun: the same bounds
+    first = bootstrap_difference(ppo, shaped, seeds_a=list(range(15)), seeds_b=seeds)
+    assert alone["mean_ci"] == first["a"]["mean_ci"]
+    assert (alone["runs"], alone["seeds"], alone["sources"]) == (15, 15, 0)
+    after = bootstrap_difference(
+        shaped, ppo, seeds_a=seeds, sources_a=sources, seeds_b=list(range(15))
+    )
+    assert after["b"]["mean_ci"] != alone["mean_ci"]  # drawn after the sources: other draws
+    two = bootstrap_mean(shaped, seeds=seeds, sources=sources)
+    assert two["mean_ci"] == after["a"]["mean_ci"] and two["sources"] == 3
+    with pytest.raises(PvedError, match="need seed labels"):
+        bootstrap_mean(shaped, sources=sources)
 
 
 def test_two_level_bootstrap_bad_labels() -> None:
