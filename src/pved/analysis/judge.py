@@ -419,6 +419,16 @@ class Judge:
                 self._diffs[key] = d
         return self._diffs[key]
 
+    def difference(self, pair: str, a: str, b: str, score: str) -> dict[str, Any] | str:
+        """mean score(a) − mean score(b) on ``pair`` (the same two-level bootstrap as the
+        tests): ``{"value", "ci", "p" (two-sided, of 0), "a", "b" (each group's runs,
+        seeds, sources, mean and mean_ci)}``, or the reason there is none."""
+        d = self._diff(pair, a, b, score)
+        if isinstance(d, str):
+            return d
+        groups = {g: {k: v for k, v in d[g].items() if k != "tests"} for g in ("a", "b")}
+        return {"value": d["diff"], "ci": d["diff_ci"], "p": _tail(d["tests"], 0.0)["p"], **groups}
+
     def margin(self, pair: str) -> tuple[float, float] | str:
         """(margin, oracle's mean final) of ``pair``: :data:`MARGIN_FRACTION` of |the
         oracle's mean final score|; or the reason there is none."""
