@@ -126,3 +126,66 @@ def first_minibatch(trainer: Any, rows: int) -> tuple[np.ndarray, ...]:
         trainer.buf_val.reshape(n)[:rows],
         trainer.buf_ctx.reshape(n, -1)[:rows],
     )
+
+
+#: A pair pved has never seen: Gymnasium's stock two-link Reacher (an SB3 policy on both
+#: tasks) teaches pved's three-link Reacher3. Stock envs report no task parameter, so
+#: episodes pair by reset seed and a bank episode is drawn at random.
+STOCK_REACHER_SPEC = """\
+name = "stock-reacher"
+training_task = "Reach"
+target_task = "Push"
+
+[source]
+agent = "StockReacher2"
+robot_state = [0, 1, 2, 3, 6, 7]   # cos, sin and velocity of both joints
+
+[source.training]
+env = "Reacher-v5"
+policy = "stock_reach.zip"
+
+[source.target]
+env = "Reacher-v5"
+kwargs = {{ reward_control_weight = 0.5 }}
+policy = "stock_push.zip"
+
+[target]
+agent = "Reacher3"
+
+[target.training]
+env = "pved/Reacher3Reach-v0"
+
+[target.target]
+env = "pved/Reacher3Push-v0"
+
+[tasks]
+shared = []
+bank_match = []
+
+[protocol]
+beta_grid = [0.1, 0.01]
+steps = {{ smoke = {smoke_steps} }}
+"""
+
+
+def stock_reacher_spec(folder: Path, smoke_steps: int = 8192) -> Path:
+    """``folder/stock-reacher.toml`` (:data:`STOCK_REACHER_SPEC`) beside its two SB3 PPO
+    policies, untrained (what they do does not matter, only that pved runs them);
+    ``smoke_steps``: env steps of a transfer run at the smoke budget."""
+    import gymnasium as gym
+    import stable_baselines3 as sb3
+
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)
+    for name in ("stock_reach.zip", "stock_push.zip"):
+        model = sb3.PPO(
+            "MlpPolicy",
+            gym.make("Reacher-v5"),
+            policy_kwargs={"net_arch": [16]},
+            seed=0,
+            device="cpu",
+        )
+        model.save(folder / name)
+    spec = folder / "stock-reacher.toml"
+    spec.write_text(STOCK_REACHER_SPEC.format(smoke_steps=smoke_steps))
+    return spec

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import run_cli
+from helpers import run_cli, stock_reacher_spec
 from pved.envs import make_batched
 from pved.envs.registry import make
 from pved.errors import PvedError
@@ -311,3 +311,36 @@ def test_without_minari_the_error_says_what_to_install(
     monkeypatch.setitem(sys.modules, "minari", None)
     with pytest.raises(PvedError, match=r"pip install pved\[minari\]"):
         open_recorded("push-v0")
+
+
+# ------------------------------------------------------------- a pair pved has never seen
+def test_a_spec_pairs_own_agents_go_through_export_minari_bank_and_pairs(
+    datasets_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # stock Reacher-v5 (SB3 policies named by the spec) -> pved's Reacher3: export-minari
+    # finds the source's env, arguments and policy in the spec as the other verbs do
+    spec = stock_reacher_spec(tmp_path / "spec")
+    runs = tmp_path / "runs"
+
+    def cli(*argv: object) -> str:
+        code, out, err = run_cli(capsys, *argv)
+        assert code == 0, err
+        return out.strip()
+
+    cli("export-minari", "stock-push-v0", "--pair", spec, "--episodes", "3", "--seed", "4")
+    cli("export-minari", "stock-reach-v0", "--pair", spec, "--task", "Reach", "--episodes", "3")
+    data = open_recorded("stock-push-v0")
+    assert (data.env_id, data.obs_dim, data.act_dim, data.episodes) == ("Reacher-v5", 10, 2, 3)
+    assert data.provenance["pved"]["agent"] == "StockReacher2"
+    assert data.provenance["pved"]["policy"] == str(spec.parent / "stock_push.zip")
+    recorded = load_bank(Path(cli("build-bank", "--pair", spec, "--runs", runs / "a",
+                                  "--source-dataset", "stock-push-v0")))  # fmt: skip
+    direct = load_bank(Path(cli("build-bank", "--pair", spec, "--runs", runs / "b",
+                                "--episodes", "3", "--seed", "4")))  # fmt: skip
+    # the spec's target-task env arguments and robot state, bit for bit the direct rollouts
+    np.testing.assert_array_equal(recorded.x, direct.x)
+    assert recorded.header["robot_state_indices"] == [0, 1, 2, 3, 6, 7]
+    pairs = load_dataset(Path(cli("collect-pairs", "--pair", spec, "--runs", runs / "a",
+                                  "--source-dataset", "stock-reach-v0")))  # fmt: skip
+    assert pairs.header["source_dataset"]["env_id"] == "Reacher-v5"
+    assert pairs.header["target_env_id"] == REACH and len(set(pairs.episode.tolist())) == 3

@@ -209,13 +209,14 @@ def _cmd_export_minari(args: argparse.Namespace) -> None:
             source_policy=args.source_policy,
             episodes=args.episodes,
             seed=args.seed,
+            runs_root=args.runs,
         )
     )
 
 
 def add_export_minari(v: Verbs) -> None:
     text = "write the source's rollouts as a Minari dataset (under MINARI_DATASETS_PATH)"
-    p = v.sub.add_parser("export-minari", help=text, description=text)
+    p = v.add("export-minari", text)
     p.add_argument("dataset_id", help="the new dataset's id, e.g. reacher3-push-v0")
     p.add_argument("--pair", default="reacher", help=v.pair_help)
     p.add_argument(
@@ -224,7 +225,8 @@ def add_export_minari(v: Verbs) -> None:
     p.add_argument(
         "--source-policy",
         type=Path,
-        help="policy.pt or an SB3 .zip (default: the pair spec's)",
+        help="policy.pt or an SB3 .zip (default: the pair spec's: shipped, the file it names, "
+        "or the pair's own train-policy run under --runs)",
     )
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)

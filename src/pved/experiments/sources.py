@@ -16,8 +16,8 @@ from pved.checks import check_int, check_seed
 from pved.config import EVAL_NUM_ENVS
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
-from pved.envs.registry import env_id
 from pved.errors import OptionError, PvedError
+from pved.experiments.inputs import DEFAULT_RUNS, env_of, policy_path
 from pved.pairing.collect import Episode, rollout_first_episodes
 from pved.pairing.minari_io import (
     RecordedData,
@@ -27,7 +27,6 @@ from pved.pairing.minari_io import (
     open_recorded,
     read_recorded_episodes,
 )
-from pved.pretrained import pretrained_policy_path
 from pved.rl.external import load_policy_file
 from pved.spec import get_preset
 
@@ -68,6 +67,7 @@ def export_source_dataset(
     episodes: int = 100,
     seed: int = 0,
     deterministic: bool = True,
+    runs_root: Path = DEFAULT_RUNS,
 ) -> Path:
     """Roll out the pair's source agent on ``task`` (default: the pair's target task,
     what a bank holds; its training task is what pairing reads) and write the episodes
@@ -79,8 +79,15 @@ def export_source_dataset(
     seed directly. The episodes' task parameters (the pair's bank match
     keys on the target task, its shared task keys on the training task) are their reset
     options.
+
+    The source's env and policy are the pair spec's (:func:`~pved.experiments.inputs.env_of`,
+    :func:`~pved.experiments.inputs.policy_path`: a shipped policy, the pair's own
+    ``train-policy`` run under ``runs_root``, or the file the spec names), as every other
+    stage finds them, so a spec pair whose agents pved does not know exports as a built-in
+    one does.
     """
     preset = get_preset(pair)
+    pair = preset.name
     task = preset.target_task if task is None else task
     if task not in (preset.training_task, preset.target_task):
         raise PvedError(
@@ -91,16 +98,12 @@ def export_source_dataset(
     check_seed("--seed", seed)
     check_new_dataset_id(dataset_id)
     keys = preset.bank_match_keys if task == preset.target_task else preset.shared_task_keys
-    name = env_id(preset.source_agent, task)
-    path = Path(
-        pretrained_policy_path(preset.source_agent, task)
-        if source_policy is None
-        else source_policy
-    )
+    name, env_kwargs = env_of(preset, preset.source_agent, task)
+    path = policy_path(preset, preset.source_agent, task, source_policy, runs_root)
     # the batch the consuming stage rolls out in: the policy's float32 forward pass rounds
     # by batch size (BLAS blocking, ~1e-7), and only the same batch repeats it bit for bit
     copies = min(EVAL_NUM_ENVS, episodes) if task == preset.target_task else preset.pairing.num_envs
-    env = make_batched(name, copies)
+    env = make_batched(name, copies, **env_kwargs)
     policy = load_policy_file(path, env=env, env_name=name)
     eps: list[Episode] = []
     for b in range(-(-episodes // env.num_envs)):
