@@ -172,7 +172,11 @@ def test_pved_prior_is_a_method_with_its_own_config(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("model", "message"),
-    [("pved-state-only", "decodes the target's state only"), ("gupta2017", "has no such decoder")],
+    [
+        ("pved-state-only", "decodes the target's state only"),
+        ("gupta2017", "does not provide it"),
+        ("pved-det-shared", "does not provide it"),
+    ],
 )
 def test_a_model_without_the_decoder_is_refused_in_one_line(
     inputs: tuple[SourceBank, PVED],

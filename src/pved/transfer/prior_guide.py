@@ -32,12 +32,14 @@ DECODE_ROWS = 4096
 
 def check_prior_model(model: type[SharedSpaceModel]) -> None:
     """Refuse, in one line, a model class whose c-only decoder cannot give the target's
-    action: one without a decoder from the shared code alone to x_T (Eq. 8's p_θ'S; the
-    point-code and Gupta models), or one whose decoders see only states."""
+    action: one that does not provide :meth:`PVED.decode_target_shared` (Eq. 8's p_θ'S;
+    Gupta's model has no such decoder, and the point-code variant is not wired to it),
+    or one whose decoders see only states."""
     if not issubclass(model, PVED):
         raise PvedError(
             f"the prior form decodes the target's action from the source's shared code "
-            f"(PVED's Eq. 8 decoder p_θ'S); model {model.name!r} has no such decoder"
+            f"(PVED.decode_target_shared, Eq. 8's p_θ'S); model {model.name!r} does not "
+            "provide it"
         )
     if model.states_only:
         raise PvedError(
