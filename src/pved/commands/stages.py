@@ -301,7 +301,9 @@ def add_transfer(v: Verbs) -> None:
         metavar="FORM",
         help="how the distance D enters the reward (default: the method's): eq10, the "
         "paper's -beta*D; log1p: -beta*log(1+D), which keeps the term's ordering but "
-        "compresses its range; potential: -beta*D as a look-back potential (not in the paper)",
+        "compresses its range; potential: -beta*D as a look-back potential; align, prior: no "
+        "reward term but a loss on the policy's mean action (pved-align's, pved-prior's) "
+        "(all but eq10 beyond the paper)",
     )
     p.add_argument(
         "--shaping-action",
