@@ -12,6 +12,7 @@ import torch
 
 from pved.blas import loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.errors import PvedError
+from pved.provenance import git_dirty, pinned_fingerprint
 from pved.runs import (
     Run,
     _read_git_commit,
@@ -160,8 +161,12 @@ def test_a_resumed_run_keeps_the_provenance_of_its_earlier_starts(tmp_path: Path
         "blas_kernel": "SkylakeX",
         "mkl_branch": None,
         "numpy_simd": None,
+        "git_dirty": None,
+        "stack": None,
+        "fingerprint": None,
     }
     assert config["previous_starts"][1]["mkl_branch"] == loaded_mkl_branch()
+    assert config["previous_starts"][1]["fingerprint"] == pinned_fingerprint()
     assert len(config["previous_starts"]) == 2
     assert config["blas_kernel"] == loaded_kernel()
     # another config's start is a new run, with no history
@@ -179,6 +184,30 @@ def test_a_run_records_the_commit_its_process_imported(
     run.start()
     recorded = json.loads((run.path / "config.json").read_text())["git_commit"]
     assert recorded == git_commit() != "a commit made since"
+
+
+def test_a_run_records_its_tree_stack_and_fingerprint_outside_the_hash(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run = Run(tmp_path / "r", {"x": 1}, tensorboard=False)
+    run.start()
+    run.finish({"score": 1.0})
+    record = json.loads((run.path / "config.json").read_text())
+    assert record["git_dirty"] == git_dirty() and record["git_dirty"] in (True, False)
+    pinned = pinned_fingerprint()
+    assert record["fingerprint"] == pinned is not None
+    assert set(record["stack"]) == {"python", "numpy", "mujoco", "torch", "torch_cpu"}
+    assert record["stack"]["numpy"] == np.__version__
+    assert record["config_hash"] == config_hash({"x": 1}) == run.hash
+    # code under another fingerprint, a dirty tree: the finished run is still the one asked
+    monkeypatch.setattr("pved.provenance._PINNED_AT_IMPORT", "another")
+    monkeypatch.setattr("pved.provenance._DIRTY_AT_IMPORT", True)
+    again = Run(run.path, {"x": 1}, tensorboard=False)
+    assert again.hash == run.hash and again.is_done()
+    again.start()  # a resumed start keeps the earlier one's fingerprint on record
+    record = json.loads((run.path / "config.json").read_text())
+    assert record["fingerprint"] == "another" and record["git_dirty"] is True
+    assert record["previous_starts"][0]["fingerprint"] == pinned
 
 
 def test_last_logged_step_reads_the_last_whole_record(tmp_path: Path) -> None:

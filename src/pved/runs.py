@@ -2,7 +2,9 @@
 
 ``runs/<pair>/<stage>/<name>/seed<k>/`` holds
 
-- ``config.json``: the resolved config, the package version and git commit, its hash;
+- ``config.json``: the resolved config, its hash, and, outside the hashed config, the
+  package version, git commit and whether the tree was dirty, the numeric stack and
+  fingerprint (:mod:`pved.provenance`);
 - ``metrics.jsonl``: one JSON object per logged step (also mirrored to TensorBoard);
 - ``events.out.tfevents.*``: TensorBoard events;
 - ``checkpoints/step<N>.pt``: resumable state, newest wins;
@@ -32,6 +34,7 @@ import torch
 from pved import __version__
 from pved.blas import loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.errors import PvedError
+from pved.provenance import record_fields
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -97,10 +100,16 @@ def file_digest(path: Path) -> str:
         except PvedError:  # not a PyTorch file: hashed by its bytes
             pass
         else:
-            digest = hashlib.sha256(b"pved-torch-state")
-            _hash_state(digest, state)
-            return digest.hexdigest()[:16]
+            return state_digest(state)
     return hashlib.sha256(data).hexdigest()[:16]
+
+
+def state_digest(state: Any) -> str:
+    """Short hash of a PyTorch state by value (tensors by dtype, shape and bytes; floats
+    by ``repr``, so exactly): what :func:`file_digest` gives the file holding it."""
+    digest = hashlib.sha256(b"pved-torch-state")
+    _hash_state(digest, state)
+    return digest.hexdigest()[:16]
 
 
 def _read_git_commit() -> str | None:
@@ -263,14 +272,25 @@ def release_claim(run_dir: Path, holder: str | None = None) -> bool:
     return True
 
 
+#: the fields of ``config.json`` beside the config and its hash: the process's, never hashed
+PROVENANCE_KEYS = (
+    "pved_version",
+    "git_commit",
+    "blas_kernel",
+    "mkl_branch",
+    "numpy_simd",
+    "git_dirty",
+    "stack",
+    "fingerprint",
+)
+
+
 def _provenance(config_record: Mapping[str, Any]) -> dict[str, Any]:
     """What a ``config.json`` says of the process that wrote it: pved's version and
-    commit, OpenBLAS's kernel, MKL's branch, numpy's SIMD group (None where a record
-    predates the field)."""
-    return {
-        key: config_record.get(key)
-        for key in ("pved_version", "git_commit", "blas_kernel", "mkl_branch", "numpy_simd")
-    }
+    commit, OpenBLAS's kernel, MKL's branch, numpy's SIMD group, whether the tree was
+    dirty, the numeric stack and fingerprint (:mod:`pved.provenance`; None where a
+    record predates the field)."""
+    return {key: config_record.get(key) for key in PROVENANCE_KEYS}
 
 
 def last_logged_step(run_dir: Path) -> int:
@@ -395,6 +415,9 @@ class Run:
                 "blas_kernel": loaded_kernel(),
                 "mkl_branch": loaded_mkl_branch(),
                 "numpy_simd": loaded_numpy_simd(),
+                # outside the hashed config, as the commit is: the code a run was made by
+                # does not decide whether it is reused (pved.provenance)
+                **record_fields(),
                 **({"previous_starts": previous_starts} if previous_starts else {}),
             },
         )
