@@ -302,6 +302,45 @@ def add_demo(v: Verbs) -> None:
     p.set_defaults(func=_cmd_demo)
 
 
+def _cmd_fingerprint(args: argparse.Namespace) -> None:
+    from pved.commands import print_json
+    from pved.errors import PvedError
+    from pved.experiments.fingerprint import check_fingerprint, mismatch_message, write_pins
+
+    check = check_fingerprint()
+    if args.json:
+        print_json(check)
+    else:
+        for stage, digest in check["digests"].items():
+            print(f"{stage}: {digest} (pinned {check['pinned']['digests'].get(stage, '-')})")
+        print(f"id: {check['id']} (pinned {check['pinned']['id']})")
+        print("matches the pins" if check["matches"] else "differs from the pins")
+    if args.pin:
+        write_pins(check["digests"])
+        print(f"pinned: {check['id']}")
+    elif not check["matches"]:
+        raise PvedError(mismatch_message(check))
+
+
+def add_fingerprint(v: Verbs) -> None:
+    p = v.sub.add_parser(
+        "fingerprint",
+        help="the numeric fingerprint: three short runs' digests against their pins",
+        description="Run a short PPO run, a short PVED fit and a short Eq. 10 shaped run "
+        "(seconds on one core), print each one's digest, the fingerprint id runs record, "
+        "and whether they match the pins in src/pved/fingerprint_pins.json; exit status 2 "
+        "when they do not.",
+    )
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.add_argument(
+        "--pin",
+        action="store_true",
+        help="write these digests into the pin file (for the commit that changes the "
+        "numbers on purpose; its message names the records it invalidates)",
+    )
+    p.set_defaults(func=_cmd_fingerprint)
+
+
 VERBS = (
     add_protocol,
     add_batch,
@@ -309,4 +348,5 @@ VERBS = (
     add_plot,
     add_claims,
     add_demo,
+    add_fingerprint,
 )
