@@ -11,7 +11,13 @@ Beside the per-part verdict a family-wise one: Holm–Bonferroni (:func:`holm`) 
 reject becomes ``undecided`` in the family-wise column (the ``definitions`` of
 :func:`judge_claims` say each test's p-value).
 
-Only files are read: ``DIR/summary.json`` and each run's ``metrics.jsonl``.
+Beside each part its A/A check (ppo-aa − ppo on the part's score and pair; "inside A/A
+noise" where the part's |difference| is no larger, :mod:`pved.analysis.transfer_measures`),
+and after the claims every method against PPO by the field's transfer measures (AUC,
+jumpstart, steps to PPO's final, final; Holm over the pairs).
+
+Only files are read: ``DIR/summary.json`` and each run's ``metrics.jsonl`` (or a
+published protocol's committed record of its curves).
 """
 
 from __future__ import annotations
@@ -192,11 +198,24 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
     bootstrap p-value of its test), ``steps_to_ppo_final``, for PPO against the oracle
     ``bar``, and for "does not beat" and "similar" ``margin``. Raises PvedError (one
     line) for bad input (see :func:`load_pairs`)."""
+    # imported here: transfer_measures builds on this module's Holm
+    from pved.analysis.transfer_measures import (
+        DEFINITIONS,
+        aa_entry,
+        beside_aa,
+        judged_methods,
+        method_measures,
+    )
+
     pairs = load_pairs(dirs)
     judge = Judge(pairs)
     claims = []
     for claim in CLAIMS:
         parts = claim.parts(judge)
+        for part in parts:
+            if "difference" in part:
+                aa = aa_entry(judge, part["pair"], part["score"])
+                part.update(beside_aa(part["difference"]["value"], aa))
         claims.append(
             {
                 "claim": claim.number,
@@ -263,9 +282,11 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
             "claim": "holds if every part holds, does not hold if any part does not, "
             "else undecided",
             "min_runs": MIN_RUNS,
+            "transfer measures and A/A": DEFINITIONS,
         },
         "family": family,
         "claims": claims,
+        "transfer_measures": [method_measures(pairs, m, judge) for m in judged_methods(pairs)],
     }
 
 
@@ -318,12 +339,23 @@ def _part_row(part: dict[str, Any]) -> str:
             cell = f"{num(diff['value'])} {_ci(diff['ci'])}"
             if "margin" in part:
                 cell += f"; margin ±{num(part['margin'])} ({part['margin_of']})"
-            cells.append(cell)
+            cells.append(f"{cell}; A/A: {_aa(part)}")
         cells.append(f"{_p(part.get('p'))} ({_p(part.get('p_holm'))})")
         cells.append(_steps_cell(part))
     else:
         cells += ["–"] * 5
     return "| " + " | ".join(c.replace("|", "/") for c in cells) + " |"
+
+
+def _aa(part: dict[str, Any]) -> str:
+    """A part's A/A check: ppo-aa − ppo [CI] and the flag, or why there is none."""
+    from pved.analysis.transfer_measures import INSIDE_AA
+
+    aa = part.get("aa", "–")
+    if isinstance(aa, str):
+        return aa
+    flag = f", **{INSIDE_AA}**" if part.get("inside_aa") else ""
+    return f"{num(aa['value'])} {_ci(aa['ci'])}{flag}"
 
 
 def _matrix_cell(part: dict[str, Any] | None) -> str:
@@ -332,6 +364,8 @@ def _matrix_cell(part: dict[str, Any] | None) -> str:
     cell = part["verdict"]
     if "difference" in part:
         cell += f" ({num(part['difference']['value'])})"
+    if part.get("inside_aa"):
+        cell += "; inside A/A noise"
     if part["family_verdict"] != part["verdict"]:
         cell += f"; Holm: {part['family_verdict']}"
     return cell
@@ -427,8 +461,8 @@ def claims_markdown(result: dict[str, Any]) -> str:
     ]
     lines += ["", verdict_matrix(result)]
     header = (
-        "| part | pair | verdict | family-wise | A | B | difference [95% CI] | p (Holm) | "
-        "steps to PPO's final |\n|---|---|---|---|---|---|---|---|---|"
+        "| part | pair | verdict | family-wise | A | B | difference [95% CI]; A/A: ppo-aa − "
+        "ppo | p (Holm) | steps to PPO's final |\n|---|---|---|---|---|---|---|---|---|"
     )
     for claim in result["claims"]:
         lines += [
@@ -441,6 +475,13 @@ def claims_markdown(result: dict[str, Any]) -> str:
             header,
             *(_part_row(p) for p in claim["parts"]),
         ]
+    from pved.analysis.transfer_measures import measures_markdown
+
+    if result.get("transfer_measures"):
+        lines += ["", "## Transfer measures against plain PPO", ""]
+        lines.append(result["definitions"]["transfer measures and A/A"])
+        for table in result["transfer_measures"]:
+            lines += ["", measures_markdown(table)]
     return "\n".join(lines) + "\n"
 
 
