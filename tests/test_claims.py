@@ -20,15 +20,17 @@ from pved.analysis.claims import (
     judge_claims,
     write_claims,
 )
-from pved.analysis.curves import bootstrap_difference
+from pved.analysis.curves import bootstrap_difference, bootstrap_mean
 from pved.analysis.judge import (
     FOUR,
     HOLDS,
     NOT_HOLD,
     UNDECIDED,
+    Judge,
     drop,
     early_score,
     eval_curve,
+    load_pairs,
     not_beat_verdict,
     similar_verdict,
 )
@@ -415,6 +417,36 @@ def test_source_policies_are_resampled(tmp_path: Path) -> None:
     by_seed = part(judge_claims([root]), 1, "pved beats ppo", "reacher")
     assert by_seed["verdict"] == HOLDS and by_seed["groups"][0]["sources"] == 0
     assert by_seed["difference"]["ci"][0] > 0.15
+
+
+def test_a_method_carries_one_interval_in_every_part(tmp_path: Path) -> None:
+    """PPO's runs print one interval wherever they appear: against PVED (drawn after
+    PVED's source policies), against Gupta et al. and against the oracle's bar alike,
+    and it is bootstrap_mean's; the reps and seed a Judge is given move it."""
+    pairs = {
+        "reacher": {
+            "pved": by_source([0.0, 0.3, 0.9]),
+            "gupta2017": by_source([0.2, 0.1, 0.5]),
+            "ppo": [list(np.linspace(0.0, v, len(STEPS))) for v in [1, 0, 0, 0.04, 0] * 3],
+            "oracle": flat(0.7, 0.1, n=15),
+        }
+    }
+    root = make_protocol(tmp_path / "p", pairs, sources=3)
+    result = judge_claims([root])
+    ppo = [
+        g["mean_ci"]
+        for claim in result["claims"]
+        for p in claim["parts"]
+        if p["pair"] == "reacher" and p["score"] == "final"
+        for g in p.get("groups", [])
+        if g["method"] == "ppo"
+    ]
+    assert len(ppo) >= 2 and all(ci == ppo[0] for ci in ppo)
+    finals = np.array([c[-1] for c in pairs["reacher"]["ppo"]])
+    assert ppo[0] == bootstrap_mean(finals, seeds=list(range(15)))["mean_ci"]
+    judge = Judge(load_pairs([root]), reps=500, seed=7)
+    other = judge.mean("reacher", "ppo")
+    assert isinstance(other, dict) and other["mean_ci"] != ppo[0]
 
 
 def test_margin_rules() -> None:

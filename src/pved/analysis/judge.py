@@ -10,6 +10,9 @@ both methods where both ran with the same source policies) and, independently, e
 method's PPO seeds with replacement, and takes every run of each drawn (source, seed)
 cell; plain PPO and the oracle have no source policy and draw their seeds only. The
 intervals therefore carry the variation between source policies as well as between seeds.
+A method's own interval, wherever a part prints it, is the same bootstrap of its mean
+alone (:meth:`Judge.mean`, :func:`pved.analysis.curves.bootstrap_mean`), so one method's
+runs carry one interval whatever they are compared with.
 
 Tests (A − B: the difference of the two methods' mean scores; :class:`Judge`):
 
@@ -57,7 +60,9 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import bootstrap_difference
+from pved.analysis.curves import REPS as REPS
+from pved.analysis.curves import SEED as SEED
+from pved.analysis.curves import bootstrap_difference, bootstrap_mean
 from pved.analysis.run_curves import EARLY_FRACTION as EARLY_FRACTION
 from pved.analysis.run_curves import curve_score, run_curve, steps_to_threshold
 from pved.analysis.run_curves import drop as drop
@@ -68,10 +73,6 @@ from pved.errors import PvedError
 HOLDS, NOT_HOLD, UNDECIDED = "holds", "does not hold", "undecided"
 VERDICTS = (HOLDS, NOT_HOLD, UNDECIDED)
 
-REPS = 20000
-"""Bootstrap resamples per interval."""
-SEED = 0
-"""Seed of every interval's resampling (each comparison is reproducible on its own)."""
 FAIL_FRACTION = 0.10
 """PPO "fails completely" below, and "still learns" above, this fraction of the oracle."""
 MARGIN_FRACTION = 0.10
@@ -377,11 +378,45 @@ def _steps_to_ppo_final(
 
 
 class Judge:
-    """The tests a claim's parts are made of; differences are cached (claims share them)."""
+    """The tests a claim's parts are made of; differences are cached (claims share them).
+    ``reps`` and ``seed``: the resampling (the project's :data:`REPS` and :data:`SEED`;
+    others only to measure how the verdicts depend on them)."""
 
-    def __init__(self, pairs: dict[str, PairSummary]) -> None:
+    def __init__(self, pairs: dict[str, PairSummary], reps: int = REPS, seed: int = SEED) -> None:
         self.pairs = pairs
+        self.reps, self.seed = reps, seed
         self._diffs: dict[tuple[Any, ...], dict[str, Any] | str] = {}
+        self._means: dict[tuple[str, str, str], dict[str, Any] | str] = {}
+
+    def mean(self, pair: str, method: str, score: str = "final") -> dict[str, Any] | str:
+        """``method``'s mean ``score`` on ``pair`` with its own 95% interval (the two-level
+        bootstrap of its runs alone, :func:`pved.analysis.curves.bootstrap_mean`): ``{"runs",
+        "seeds", "sources", "mean", "mean_ci"}``, or the reason there is none."""
+        key = (pair, method, score)
+        if key not in self._means:
+            x = _scores(self.pairs, pair, method, score)
+            self._means[key] = (
+                x
+                if isinstance(x, str)
+                else bootstrap_mean(
+                    x,
+                    run_seeds(self.pairs, pair, method),
+                    run_sources(self.pairs, pair, method),
+                    reps=self.reps,
+                    seed=self.seed,
+                )
+            )
+        return self._means[key]
+
+    def _groups(self, pair: str, score: str, **named: str) -> dict[str, dict[str, Any]]:
+        """Each named method's own interval (:meth:`mean`), for a difference that exists."""
+        out: dict[str, dict[str, Any]] = {}
+        for g, method in named.items():
+            mean = self.mean(pair, method, score)
+            if isinstance(mean, str):  # cannot be: the difference had its scores
+                raise PvedError(mean)
+            out[g] = dict(mean)
+        return out
 
     def _diff(
         self,
@@ -405,8 +440,8 @@ class Judge:
                 d = bootstrap_difference(
                     xa,
                     xb,
-                    reps=REPS,
-                    seed=SEED,
+                    reps=self.reps,
+                    seed=self.seed,
                     seeds_a=run_seeds(self.pairs, pair, a),
                     seeds_b=run_seeds(self.pairs, pair, b),
                     sources_a=run_sources(self.pairs, pair, a),
@@ -426,7 +461,7 @@ class Judge:
         d = self._diff(pair, a, b, score)
         if isinstance(d, str):
             return d
-        groups = {g: {k: v for k, v in d[g].items() if k != "tests"} for g in ("a", "b")}
+        groups = self._groups(pair, score, a=a, b=b)
         return {"value": d["diff"], "ci": d["diff_ci"], "p": _tail(d["tests"], 0.0)["p"], **groups}
 
     def margin(self, pair: str) -> tuple[float, float] | str:
@@ -465,10 +500,8 @@ class Judge:
         if isinstance(d, str):
             part["reason"] = d
             return part, None
-        part["groups"] = [
-            {"method": m, **{k: v for k, v in d[g].items() if k != "tests"}}
-            for m, g in ((a, "a"), (b, "b"))
-        ]
+        groups = self._groups(pair, score, a=a, b=b)
+        part["groups"] = [{"method": m, **groups[g]} for m, g in ((a, "a"), (b, "b"))]
         part["difference"] = {
             "of": f"mean {score}({a}) − mean {score}({b})",
             "value": d["diff"],
@@ -550,7 +583,8 @@ class Judge:
             part["reason"] = f"oracle's mean final score is {oracle_mean:.3g}: no scale for a bar"
             return part
         part["p"] = _tail(d["a"]["tests"], bar)["p"]
-        lo, hi = d["a"]["mean_ci"]
+        # PPO's own interval (drawn first and without sources, the draws of its p too)
+        lo, hi = part["groups"][0]["mean_ci"]
         below, above = hi < bar, lo > bar
         if below or above:
             part["verdict"] = HOLDS if (above if learns else below) else NOT_HOLD
