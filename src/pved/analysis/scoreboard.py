@@ -13,14 +13,25 @@ unless it is already out of reach (a pair behind, or too few left to be ahead on
 The comparison is ``pved claims``' test "beats" (:meth:`pved.analysis.judge.Judge.beats`:
 the same two-level bootstrap over source policies and PPO seeds, resamples and seed), so
 the intervals carry the variation between source policies as well as between seeds. A
-group's own CI is from the resamples of its difference from PPO.
+column's CI is the method's own (:meth:`pved.analysis.judge.Judge.mean`), the same on
+every pair's row and every page.
 
 The inputs are finished ``pved protocol`` directories (``summary.json``): a pair may come
 from several, say the method's screen and the protocol that ran PVED and the oracle,
 provided they were run at one budget and any method found in two of them is the same
 runs (a screen reusing another protocol's PPO runs through ``--stages-from`` is). The
 steps to PPO's final are the protocols' own (``steps_to_ppo_final`` in each summary,
-against the PPO runs checked to be the same). Only ``summary.json`` files are read.
+against the PPO runs checked to be the same).
+
+Beside each pair's standing its A/A check, ppo-aa − ppo on the final score ("inside A/A
+noise" where the method's |difference| is no larger; "no A/A set" without ppo-aa runs),
+and after the goal the method against PPO by the field's transfer measures (AUC,
+jumpstart, steps to PPO's final, final; Holm over the pairs;
+:mod:`pved.analysis.transfer_measures`). A method whose results the protocol marks
+exploratory (evaluated at the paper's budget without a pre-registration) is labelled so.
+
+Only ``summary.json`` files are read, and for the measures off the curves each run's
+``metrics.jsonl`` or, in a published directory, the committed record of its curves.
 """
 
 from __future__ import annotations
@@ -37,6 +48,16 @@ from pved.analysis.judge import (
     PairSummary,
     check_pair,
     load_summary,
+)
+from pved.analysis.transfer_measures import (
+    DEFINITIONS,
+    EXPLORATORY,
+    aa_cell,
+    aa_entry,
+    beside_aa,
+    is_exploratory,
+    measures_markdown,
+    method_measures,
 )
 from pved.errors import PvedError
 
@@ -138,13 +159,16 @@ def _baseline_columns(judge: Judge, pair: PairSummary) -> dict[str, Any]:
     return columns
 
 
-def pair_row(pairs: dict[str, PairSummary], name: str, method: str) -> dict[str, Any]:
+def pair_row(
+    pairs: dict[str, PairSummary], name: str, method: str, judge: Judge | None = None
+) -> dict[str, Any]:
     """One pair's row: each column's runs, mean and CI; the method's difference from PPO,
-    its standing (ahead, behind, level) and its speed; or the reason it is missing."""
+    its standing (ahead, behind, level) and its speed; or the reason it is missing.
+    ``judge``: one over ``pairs`` to share (default: a new one, the project's resampling)."""
     pair = pairs[name]
     row: dict[str, Any] = {"pair": name, "metric": pair.metric, "budget": pair.budget}
     missing = [m for m in (method, "ppo") if not (pair.methods.get(m) or {}).get("runs")]
-    judge = Judge(pairs)
+    judge = judge if judge is not None else Judge(pairs)
     if missing:
         row["reason"] = f"no runs of {' or '.join(missing)} on {name}"
         if missing == [method]:  # the baselines still give the pair's scale
@@ -161,6 +185,8 @@ def pair_row(pairs: dict[str, PairSummary], name: str, method: str) -> dict[str,
     row["columns"] = {**_baseline_columns(judge, pair), **columns}
     row["difference"] = {**beats["difference"], "p": beats["p"]}
     row["standing"] = {HOLDS: AHEAD, NOT_HOLD: BEHIND}.get(beats["verdict"], LEVEL)
+    row.update(beside_aa(beats["difference"]["value"], aa_entry(judge, name, "final")))
+    row[EXPLORATORY] = is_exploratory(pair, method)
     ppo_steps = _ppo_steps(pair)
     entry = pair.methods[method]
     reach = entry.get("steps_to_ppo_final")
@@ -222,7 +248,13 @@ def scoreboard(method: str, dirs: Sequence[str | Path]) -> dict[str, Any]:
         goal["verdict"] = "reached" if reached else "not reached"
         goal["why"] = counts
     budgets = sorted({r["budget"] for r in rows})
-    return {"method": method, "budgets": budgets, "rows": rows, "goal": goal}
+    return {
+        "method": method,
+        "budgets": budgets,
+        "rows": rows,
+        "goal": goal,
+        "transfer_measures": method_measures(pairs, method),
+    }
 
 
 def _num(x: float) -> str:
@@ -247,8 +279,8 @@ def scoreboard_markdown(result: dict[str, Any]) -> str:
         "mean, and the fraction of PPO's steps.",
         "",
         f"| pair | metric | ppo | pved | {method} | oracle | {method} − ppo [95% CI], p "
-        "| steps to ppo's final | standing |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| steps to ppo's final | standing | A/A: ppo-aa − ppo [95% CI] |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["rows"]:
         if "reason" in r and "columns" in r:  # the method did not run here; PPO did
@@ -256,11 +288,11 @@ def scoreboard_markdown(result: dict[str, Any]) -> str:
             lines.append(
                 f"| {r['pair']} | {r['metric']} | {_cell(cols.get('ppo'))} | "
                 f"{_cell(cols.get('pved'))} | not run | {_cell(cols.get('oracle'))} | – | – "
-                f"| {r['reason']} |"
+                f"| {r['reason']} | – |"
             )
             continue
         if "reason" in r:
-            lines.append(f"| {r['pair']} | {r['metric']} | {r['reason']} |||||||")
+            lines.append(f"| {r['pair']} | {r['metric']} | {r['reason']} ||||||||")
             continue
         cols, d = r["columns"], r["difference"]
         lo, hi = d["ci"]
@@ -271,14 +303,18 @@ def scoreboard_markdown(result: dict[str, Any]) -> str:
             steps = "not reached"
         else:
             steps = f"{reach:,} ({r['fraction_of_ppo_steps']:.2f} of {r['ppo_steps']:,})"
+        mine = _cell(cols.get(method)) + (f" **{EXPLORATORY}**" if r.get(EXPLORATORY) else "")
         lines.append(
             f"| {r['pair']} | {r['metric']} | {_cell(cols.get('ppo'))} | "
-            f"{_cell(cols.get('pved'))} | {_cell(cols.get(method))} | "
+            f"{_cell(cols.get('pved'))} | {mine} | "
             f"{_cell(cols.get('oracle'))} | {d['value']:+.3f} [{lo:+.3f}, {hi:+.3f}], "
-            f"p {d['p']:.2g} | {steps} | {r['standing']}{', fast' if r['fast'] else ''} |"
+            f"p {d['p']:.2g} | {steps} | {r['standing']}{', fast' if r['fast'] else ''} | "
+            f"{aa_cell('final', r['aa'], r['inside_aa'])} |"
         )
     goal = result["goal"]
     lines += ["", f"Goal ({goal['needs']}): **{goal['verdict']}**: {goal['why']}."]
+    if "transfer_measures" in result:  # absent from scoreboards written before them
+        lines += ["", DEFINITIONS, "", measures_markdown(result["transfer_measures"])]
     return "\n".join(lines) + "\n"
 
 
