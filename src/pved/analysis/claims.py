@@ -185,8 +185,10 @@ def family_wise(claims: Sequence[dict[str, Any]], alpha: float = FAMILY_ALPHA) -
     }
 
 
-def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
-    """Verdicts on the seven claims from the protocol directories ``dirs`` (JSON-able).
+def judge_claims(dirs: Sequence[Path], *, reps: int = REPS, seed: int = SEED) -> dict[str, Any]:
+    """Verdicts on the seven claims from the protocol directories ``dirs`` (JSON-able);
+    ``reps`` and ``seed``: the resampling (others than the project's only to measure how
+    the verdicts depend on them).
 
     Returns ``{"inputs": [{"dir", "budget", "pairs"}...], "pairs": {pair: {"metric",
     "dir", "budget", "runs": {method: n}}}, "definitions": {...}, "family": {"alpha",
@@ -208,7 +210,7 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
     )
 
     pairs = load_pairs(dirs)
-    judge = Judge(pairs)
+    judge = Judge(pairs, reps=reps, seed=seed)
     claims = []
     for claim in CLAIMS:
         parts = claim.parts(judge)
@@ -246,7 +248,7 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
             "both methods where both ran with the same ones) and, independently, each "
             "method's PPO seeds with replacement (seeds are not paired between methods), "
             "and takes every run of each drawn (source, seed) cell; PPO and the oracle "
-            f"have no source and draw seeds only; {REPS} resamples, seed {SEED}",
+            f"have no source and draw seeds only; {reps} resamples, seed {seed}",
             "final": "a run's metric in summary.json",
             "early": f"mean of a run's evaluation points at steps <= {EARLY_FRACTION:.0%} "
             "of its last evaluation step",
@@ -267,7 +269,7 @@ def judge_claims(dirs: Sequence[Path]) -> dict[str, Any]:
             "still learns": f"PPO's final mean CI above {FAIL_FRACTION:.0%} of the "
             "oracle's mean (below: does not hold)",
             "p": "bootstrap p-value of the part's test, P(d* <= c) and P(d* >= c) taken as "
-            f"(1 + count) / (1 + {REPS}) over the resampled differences d* (PPO against "
+            f"(1 + count) / (1 + {reps}) over the resampled differences d* (PPO against "
             "the oracle: PPO's resampled means); beats, faster early, more stable: "
             "2 min(P(d* <= 0), P(d* >= 0)); does not beat: the same of +m; similar: "
             "2 max(P(d* <= −m), P(d* >= +m)) (TOST) where it holds, 2 min(P(d* <= +m), "
