@@ -74,3 +74,122 @@ def test_a_published_record_gives_the_curves_and_without_it_there_are_none(
     without = load_pairs([summary_dir(tmp_path / "b", curves, record=False)])
     part = Judge(without).faster_early("reacher", "new", "ppo")
     assert part["verdict"] == "undecided" and part["reason"].startswith("no curves of run")
+
+
+def protocol_dir(root: Path, pairs: dict[str, dict[str, list[list[float]]]], **marks: Any) -> Path:
+    """A finished protocol directory whose runs have these curves at STEPS (a method's
+    final score is its curve's last point); ``marks``: extra fields of a method's entry
+    on every pair (``{"new": {"exploratory": True}}``)."""
+    root.mkdir(parents=True)
+    summary: dict[str, Any] = {"budget": "paper", "pairs": {}}
+    for pair, methods in pairs.items():
+        entries: dict[str, Any] = {}
+        for method, curves in methods.items():
+            runs = []
+            for i, curve in enumerate(curves):
+                key = f"{pair}/transfer/{method}/seed{i}"
+                run_dir = root / "runs" / key
+                run_dir.mkdir(parents=True)
+                rows = [{"step": s, "eval/score": v} for s, v in zip(STEPS, curve, strict=True)]
+                (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+                runs.append({"key": key, "seed": i, "score": curve[-1]})
+            entries[method] = {"runs": runs, **marks.get(method, {})}
+        summary["pairs"][pair] = {"metric": "score", "methods": entries}
+    (root / "summary.json").write_text(json.dumps(summary))
+    return root
+
+
+def rising(start: float, end: float, n: int = 6, spread: float = 0.02) -> list[list[float]]:
+    """``n`` runs rising linearly from ``start`` to ``end``, each offset a little."""
+    return [list(np.linspace(start, end, len(STEPS)) + o) for o in np.linspace(-spread, spread, n)]
+
+
+def test_measures_match_a_hand_computation_with_holm_over_pairs_and_the_aa_check(
+    tmp_path: Path,
+) -> None:
+    from pved.analysis.transfer_measures import INSIDE_AA, NO_AA, method_measures
+
+    pairs = {
+        # far ahead of PPO, and a tiny difference well inside PPO-vs-PPO's
+        "reacher": {
+            "ppo": rising(0, 0.4),
+            "ppo-aa": rising(0, 0.4, spread=0.1),
+            "new": rising(0.2, 0.9),
+        },
+        "jaco-fetch": {
+            "ppo": rising(0, 0.4),
+            "ppo-aa": rising(0, 0.4, spread=0.1),
+            "new": rising(0, 0.401),
+        },
+        "walker-hopper": {"ppo": rising(0, 0.4), "new": rising(0, 0.8)},  # no A/A set
+    }
+    result = method_measures(load_pairs([protocol_dir(tmp_path / "p", pairs)]), "new")
+    assert list(result["pairs"]) == ["reacher", "walker-hopper", "jaco-fetch"]  # Fig. 3's order
+    reacher = result["pairs"]["reacher"]
+    # a straight line's normalised area is its midpoint: (0.2 + 0.9) / 2 − (0 + 0.4) / 2
+    assert reacher["auc"]["value"] == pytest.approx(0.55 - 0.2)
+    assert reacher["jumpstart"]["value"] == pytest.approx(0.2)
+    assert reacher["final"]["value"] == pytest.approx(0.5)
+    # steps to PPO's final (0.4, its last points' mean), by hand per run; PPO's runs
+    # below it at the end count one evaluation past the last step
+    threshold = 0.4
+    new_steps = [
+        next(s for s, v in zip(STEPS, c, strict=True) if v >= threshold)
+        for c in pairs["reacher"]["new"]
+    ]
+    ppo_steps = [
+        next((s for s, v in zip(STEPS, c, strict=True) if v >= threshold), 5000)
+        for c in pairs["reacher"]["ppo"]
+    ]
+    assert reacher["reach"]["value"] == pytest.approx(np.mean(new_steps) - np.mean(ppo_steps))
+    assert reacher["reach"]["reached"] == 6 and reacher["reach"]["threshold"] == pytest.approx(
+        threshold
+    )
+    for measure in ("auc", "final"):
+        cells = [result["pairs"][p][measure] for p in result["pairs"]]
+        assert all(c["p_holm"] >= c["p"] for c in cells)
+        assert max(c["p_holm"] for c in cells) == pytest.approx(max(c["p"] for c in cells))
+    assert reacher["final"]["inside_aa"] is False and reacher["final"]["aa"]["noise"] > 0
+    jaco = result["pairs"]["jaco-fetch"]["final"]
+    assert jaco["inside_aa"] is True and abs(jaco["value"]) <= jaco["aa"]["noise"]
+    lo, hi = jaco["aa"]["ci"]
+    assert jaco["aa"]["noise"] == pytest.approx(max(abs(lo), abs(hi)))
+    walker = result["pairs"]["walker-hopper"]["final"]
+    assert walker["aa"] == NO_AA and walker["inside_aa"] is None
+    from pved.analysis.transfer_measures import measures_markdown
+
+    md = measures_markdown(result)
+    assert f"**{INSIDE_AA}**" in md and NO_AA in md and "(6 of 6 reach it)" in md
+
+
+def test_scoreboard_and_claims_print_the_aa_check_and_the_exploratory_label(tmp_path: Path) -> None:
+    from pved.analysis.claims import claims_markdown, judge_claims
+    from pved.analysis.scoreboard import scoreboard, scoreboard_markdown
+
+    pairs = {
+        "reacher": {
+            "ppo": rising(0, 0.4),
+            "ppo-aa": rising(0, 0.4, spread=0.1),
+            "new": rising(0, 0.401),
+            "pved": rising(0, 0.401),
+        },
+        "jaco-fetch": {"ppo": rising(0, 0.4), "new": rising(0, 0.9)},
+    }
+    directory = protocol_dir(tmp_path / "p", pairs, new={"exploratory": True})
+    result = scoreboard("new", [directory])
+    rows = {r["pair"]: r for r in result["rows"]}
+    assert rows["reacher"]["inside_aa"] is True and rows["jaco-fetch"]["aa"] == "no A/A set"
+    assert rows["reacher"]["exploratory"] is True
+    md = scoreboard_markdown(result)
+    assert md.count("**exploratory**") == 3  # each row, and the measures' title
+    assert "; **inside A/A noise** |" in md and "| no A/A set |" in md
+    assert "AUC (normalised)" in md
+    claims = judge_claims([directory])
+    assert [t["method"] for t in claims["transfer_measures"]] == ["new", "pved"]
+    (beats,) = [
+        p for p in claims["claims"][0]["parts"] if p["pair"] == "reacher" and "difference" in p
+    ]
+    assert beats["inside_aa"] is True and beats["aa"]["noise"] >= abs(beats["difference"]["value"])
+    md = claims_markdown(claims)
+    assert "**exploratory** on reacher, jaco-fetch" in md
+    assert "undecided (0.001); inside A/A noise" in md and "; A/A: no A/A set" not in md
