@@ -193,3 +193,58 @@ def test_scoreboard_and_claims_print_the_aa_check_and_the_exploratory_label(tmp_
     md = claims_markdown(claims)
     assert "**exploratory** on reacher, jaco-fetch" in md
     assert "undecided (0.001); inside A/A noise" in md and "; A/A: no A/A set" not in md
+
+
+def test_compare_gives_the_measures_and_the_aa_check_with_aa_runs(tmp_path: Path) -> None:
+    from pved.analysis.compare import compare_runs, format_comparison
+    from test_compare import make_run
+
+    a = [make_run(tmp_path / "a", s, [0.0, 0.6, 1.0, 0.8, 0.9], 0.9) for s in (1, 2)]
+    b = [
+        make_run(tmp_path / "b", 1, [0.0, 0.0, 0.2, 0.4, 0.5], 0.5),
+        make_run(tmp_path / "b", 2, [0.0, 0.0, 0.0, 0.2, 0.3], 0.3),
+    ]
+    result = compare_runs(a, b, ("new", "old"))
+    m = result["measures"]
+    # normalised AUC by hand (steps 0..1000 by 250): trapezoids / 1000
+    auc_a = (0.3 + 0.8 + 0.9 + 0.85) * 250 / 1000
+    auc_b = np.mean([(0 + 0.1 + 0.3 + 0.45) * 250 / 1000, (0 + 0 + 0.1 + 0.25) * 250 / 1000])
+    assert m["auc"]["diff"] == pytest.approx(auc_a - auc_b)
+    assert m["jumpstart"]["diff"] == pytest.approx(0.0)
+    # old's final mean point 0.4: new reaches it at 250; old's runs at 750 and never (1250)
+    assert m["reach"]["diff"] == pytest.approx(250 - (750 + 1250) / 2)
+    assert result["aa"] == "no A/A set" and result["diff"]["final"]["inside_aa"] is None
+    assert "A/A: no A/A set" in format_comparison(result)
+    # a second set of old's kind: the difference new − old lies well outside its noise
+    aa = [make_run(tmp_path / "aa", s, [0.0, 0.0, 0.1, 0.3, 0.4], 0.4) for s in (3, 4)]
+    result = compare_runs(a, b, ("new", "old"), aa=aa)
+    assert set(result["aa"]) == {"final", "early", "drop", "auc", "jumpstart", "reach"}
+    assert result["aa"]["final"]["diff"] == pytest.approx(0.0)
+    assert result["diff"]["final"]["inside_aa"] is False
+    assert result["measures"]["jumpstart"]["inside_aa"] is True  # 0 against 0
+    assert "- jumpstart: +0.000 [+0.000, +0.000]: new − old is inside A/A noise" in (
+        format_comparison(result)
+    )
+
+
+@pytest.mark.parametrize("budget", ["smoke", "quick", "paper", "paper-wide"])
+def test_the_aa_set_is_ppo_on_seeds_no_other_method_uses(tmp_path: Path, budget: str) -> None:
+    from pved.config import get_budget
+    from pved.experiments.protocol_plan import ProtocolPlan
+
+    plan = ProtocolPlan(["reacher"], ["pved", "ppo", "ppo-aa", "oracle"], budget, tmp_path)
+    jobs = [j for j in plan.expand({}) if "/transfer/" in j.key]
+    by_method: dict[str, list[Any]] = {}
+    for job in jobs:
+        by_method.setdefault(job.kwargs["method"], []).append(job)
+    b = get_budget(budget)
+    aa_seeds = {j.kwargs["seed"] for j in by_method["ppo-aa"]}
+    assert len(aa_seeds) == len(by_method["ppo"]) == b.source_policies * len(b.evaluation_seeds)
+    others = {j.kwargs["seed"] for m, js in by_method.items() if m != "ppo-aa" for j in js}
+    # the shaped methods' evaluation seeds (not planned before their selection) and tuning
+    assert not aa_seeds & (others | set(b.evaluation_seeds) | set(b.tuning_seeds))
+    # the same run as ppo's in every other respect
+    ppo, aa = by_method["ppo"][0].kwargs, by_method["ppo-aa"][0].kwargs
+    same = {k for k in ppo if k not in ("method", "seed", "run_name")}
+    assert {k: aa[k] for k in same} == {k: ppo[k] for k in same}
+    assert plan.evaluation_jobs("reacher", "ppo-aa")[0].key == by_method["ppo-aa"][0].key

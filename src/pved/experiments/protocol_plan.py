@@ -19,9 +19,10 @@ the β and model initialisation chosen on the screen's tuning seeds (never on ev
 seeds; the summary says where each selection was made).
 
 The reference methods (``ppo``: the target's restricted reward alone; ``oracle``: the
-source's full reward) have nothing to tune and no source; each evaluation seed s is run
-as seeds s, s+1, ..., one per source policy, so every method has the same number of
-independent runs. "Does best" is the mean over tuning seeds of the pair's metric
+source's full reward; ``ppo-aa``: ``ppo`` again, the A/A check) have nothing to tune and
+no source; each evaluation seed s is run as seeds s, s+1, ..., one per source policy
+(``ppo-aa``: s + 10000, s + 10001, ..., :func:`reference_seed`), so every method has the
+same number of independent runs. "Does best" is the mean over tuning seeds of the pair's metric
 (success rate, or distance along x), ties broken by the mean final return.
 
 Every stage is an ordinary run directory under ``OUT/runs`` (policies the package does
@@ -56,7 +57,7 @@ from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.record_paths import record_path
 from pved.runs import run_path
 from pved.spec import get_preset, preset_for_agent
-from pved.transfer.methods import REFERENCE_METHODS, get_method
+from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
 
 PLAN_FILE = "protocol.json"
 
@@ -139,6 +140,20 @@ def _betas_beyond(
         edges = (_best(candidates, resolution).beta,)
     beyond = (_next_decade(grid, tried, edge, extensions) for edge in edges)
     return [beta for beta in beyond if beta is not None]
+
+
+AA_SEED_OFFSET = 10_000
+"""``ppo-aa``'s seeds lie this far above ``ppo``'s: the evaluation seeds are multiples of
+20,000 (tuning seeds at most 10,000), so s + 10,000 + k (k < 3 source policies) is an odd
+multiple of 10,000 plus k, a seed no other method of any budget uses."""
+
+
+def reference_seed(method: str, seed: int, k: int) -> int:
+    """The PPO seed of reference ``method``'s run for evaluation seed ``seed`` and source
+    policy ``k`` (a reference has no source; k only numbers its extra runs): s + k, and
+    for the A/A set (:data:`pved.transfer.methods.AA_REFERENCE`) s + :data:`AA_SEED_OFFSET` + k,
+    so that its runs share no seed with ``ppo``'s (nor the oracle's)."""
+    return seed + k + (AA_SEED_OFFSET if method == AA_REFERENCE else 0)
 
 
 def transfer_run_name(method: str, beta: float, init: int, source: int) -> str:
@@ -383,7 +398,7 @@ class ProtocolPlan:
             return job.key
 
         eval_jobs = [
-            self._transfer_job(pair, method, seed + k, source=k)
+            self._transfer_job(pair, method, reference_seed(method, seed, k), source=k)
             for method in self.methods
             if method in REFERENCE_METHODS
             for k in range(b.source_policies)
@@ -555,7 +570,7 @@ class ProtocolPlan:
         b = self.budget
         if method in REFERENCE_METHODS:
             return [
-                self._transfer_job(pair, method, s + k, source=k)
+                self._transfer_job(pair, method, reference_seed(method, s, k), source=k)
                 for k in range(b.source_policies)
                 for s in b.evaluation_seeds
             ]

@@ -20,7 +20,8 @@ from pved.transfer.shaping import SHAPING_FORMS
 
 NO_TRANSFER = "ppo"  # the target agent's restricted reward alone
 ORACLE = "oracle"  # the target agent with the source's full reward, no shaping
-REFERENCE_METHODS = (NO_TRANSFER, ORACLE)
+AA_REFERENCE = "ppo-aa"  # plain PPO again on other seeds: the A/A check's second set
+REFERENCE_METHODS = (NO_TRANSFER, AA_REFERENCE, ORACLE)
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,15 @@ METHODS: dict[str, Method] = {
         anneal=0.5,
     ),
     NO_TRANSFER: Method(NO_TRANSFER, None, summary="PPO on the target task's reward alone"),
+    # The A/A check (docs/decisions/claims.md): the same code and reward as ppo on a block
+    # of seeds no other method uses (protocol_plan.reference_seed), so that ppo-aa − ppo,
+    # 0 in truth, shows how large a difference the runs make by chance.
+    AA_REFERENCE: Method(
+        AA_REFERENCE,
+        None,
+        paper=False,
+        summary="reference: plain PPO again on other seeds (the A/A check's second set)",
+    ),
     ORACLE: Method(
         ORACLE, None, train_reward="full", summary="PPO on the source's full reward, no shaping"
     ),
@@ -177,6 +187,7 @@ def shaped_methods() -> list[str]:
 
 
 __all__ = [
+    "AA_REFERENCE",
     "METHODS",
     "NO_TRANSFER",
     "ORACLE",
