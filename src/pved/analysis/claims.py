@@ -22,7 +22,7 @@ published protocol's committed record of its curves).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,9 +42,11 @@ from pved.analysis.judge import (
     UNDECIDED,
     VERDICTS,
     Judge,
+    PairSummary,
     load_pairs,
     num,
 )
+from pved.provenance import UNKNOWN, fingerprint_mismatch
 
 FAMILY_ALPHA = 0.05
 """Family-wise error rate of the Holm–Bonferroni view over one judgement's tests."""
@@ -227,6 +229,7 @@ def judge_claims(dirs: Sequence[Path], *, reps: int = REPS, seed: int = SEED) ->
             }
         )
     family = family_wise(claims)
+    made_under, warnings = _fingerprints(pairs, claims)
     inputs: dict[str, dict[str, Any]] = {}
     for p in pairs.values():
         inputs.setdefault(str(p.directory), {"dir": str(p.directory), "budget": p.budget})
@@ -289,7 +292,47 @@ def judge_claims(dirs: Sequence[Path], *, reps: int = REPS, seed: int = SEED) ->
         "family": family,
         "claims": claims,
         "transfer_measures": [method_measures(pairs, m, judge) for m in judged_methods(pairs)],
+        # the numeric fingerprints each method's runs were made under (pved.provenance),
+        # and a line for each compared pair of methods not all made under one known one
+        "fingerprints": made_under,
+        "fingerprint_warnings": warnings,
     }
+
+
+def _fingerprints(
+    pairs: Mapping[str, PairSummary], claims: Sequence[dict[str, Any]]
+) -> tuple[dict[str, dict[str, dict[str, int]]], list[str]]:
+    """Each pair's methods' fingerprint counts, from summary.json (a summary written
+    before fingerprints: all its runs unknown), and the warnings of the parts whose two
+    methods were not all made under one known fingerprint; each such part gets its
+    ``fingerprint_warning``."""
+    made_under = {
+        p.name: {m: _made_under(e or {}) for m, e in p.methods.items()} for p in pairs.values()
+    }
+    warnings: list[str] = []
+    for claim in claims:
+        for part in claim["parts"]:
+            if len(part.get("groups") or []) != 2:
+                continue
+            a, b = (g["method"] for g in part["groups"])
+            counts = made_under.get(part["pair"], {})
+            mismatch = fingerprint_mismatch(counts.get(a, {}), counts.get(b, {}))
+            if mismatch is not None:
+                part["fingerprint_warning"] = mismatch
+                line = f"{part['pair']}: {a} and {b} were {mismatch}"
+                if line not in warnings:
+                    warnings.append(line)
+    return made_under, warnings
+
+
+def _made_under(method_summary: Mapping[str, Any]) -> dict[str, int]:
+    """A method's fingerprint counts in summary.json; its runs all unknown where the
+    summary was written before fingerprints."""
+    counts = method_summary.get("fingerprints")
+    if isinstance(counts, dict) and counts:
+        return {str(fp): int(n) for fp, n in counts.items()}
+    runs = len(method_summary.get("runs") or [])
+    return {UNKNOWN: runs} if runs else {}
 
 
 # ---------------------------------------------------------------------------- report
@@ -409,6 +452,8 @@ def claims_markdown(result: dict[str, Any]) -> str:
         runs = ", ".join(f"{m} {n}" for m, n in p["runs"].items()) or "none"
         title = f" — {PAIR_TITLES[name]}" if name in PAIR_TITLES else ""
         lines.append(f"- {name}{title} ({p['metric']}): runs per method: {runs}")
+    for warning in result.get("fingerprint_warnings", []):
+        lines.append(f"- Warning: {warning}")
     family = result["family"]
     lines += [
         "",

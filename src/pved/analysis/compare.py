@@ -31,6 +31,7 @@ import numpy as np
 from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
 from pved.analysis.judge import drop, early_score, eval_curve
 from pved.errors import PvedError
+from pved.provenance import count_fingerprints, fingerprint_mismatch, run_fingerprint
 from pved.runs import read_json
 from pved.spec import get_preset
 
@@ -87,8 +88,9 @@ def _stage(run_dir: Path) -> object:
 
 def _load_run(run_dir: Path) -> dict[str, Any]:
     """A finished transfer run's pair, length, PPO seed, source bank (None: a method
-    without one, plain PPO or the oracle) and final results."""
-    config = _read_json(run_dir / "config.json")["config"]
+    without one, plain PPO or the oracle), numeric fingerprint and final results."""
+    record = _read_json(run_dir / "config.json")
+    config = record["config"]
     ppo = config.get("ppo")
     if not isinstance(ppo, dict) or not isinstance(config.get("pair"), str):
         raise PvedError(f"{run_dir / 'config.json'}: no pair or PPO config recorded")
@@ -98,6 +100,7 @@ def _load_run(run_dir: Path) -> dict[str, Any]:
         "steps": ppo.get("total_steps"),
         "seed": ppo.get("seed"),
         "source": config.get("bank"),
+        "fingerprint": run_fingerprint(record),
         "result": _read_json(run_dir / "result.json"),
     }
 
@@ -171,8 +174,10 @@ def compare_runs(
     Returns ``{"pair", "metric", "steps", "resampling": what the intervals resample,
     "groups": {name: {"runs", "dirs", "seeds", "sources" (each run's bank, or None),
     "final": {"mean", "mean_ci"}, "early_mean", "drop_mean", "steps_to_<B>_final"}},
-    "<B>_final": B's final mean curve point, "<B>_improved", "diff": {score: {"diff",
-    "diff_ci", "p"}}}``, differences A − B (``p``: the bootstrap p-value of 0). Raises
+    "<B>_final": B's final mean curve point, "<B>_improved", "fingerprint_warning": None
+    or the line saying the groups were not all made under one known numeric fingerprint,
+    "diff": {score: {"diff", "diff_ci", "p"}}}`` (each group also lists ``fingerprints``:
+    the runs made under each), differences A − B (``p``: the bootstrap p-value of 0). Raises
     PvedError (one line) for bad input."""
     name_a, name_b = names
     if name_a == name_b:
@@ -201,6 +206,7 @@ def compare_runs(
             "the two groups are evaluated at different steps: "
             "compare runs of one evaluation schedule"
         )
+    made_under = [count_fingerprints([r["fingerprint"] for r in runs]) for runs in (runs_a, runs_b)]
     reach = steps_to_baseline_finals([ga["curve"], gb["curve"]], [name_b])
     b_final = float(gb["curve"].mean[-1])
     b_improved = f"{name_b}_final" in reach[name_b]
@@ -212,6 +218,8 @@ def compare_runs(
         "groups": {},
         f"{name_b}_final": b_final,
         f"{name_b}_improved": b_improved,
+        # None, or why the difference may be the code's arithmetic too (pved.provenance)
+        "fingerprint_warning": fingerprint_mismatch(*made_under),
         "diff": {},
     }
     for score in SCORES:
@@ -234,6 +242,7 @@ def compare_runs(
                     "dirs": [str(r["dir"]) for r in g["runs"]],
                     "seeds": [r["seed"] for r in g["runs"]],
                     "sources": g["sources"],
+                    "fingerprints": made_under[0 if key == "a" else 1],
                 },
             )
             if score == "final":
@@ -282,4 +291,6 @@ def format_comparison(result: dict[str, Any]) -> str:
             f"{score}: {names[0]} − {name_b} = {d['diff']:+.3f} {interval(d['diff_ci'])}, "
             f"p = {d['p']:.3g}"
         )
+    if result.get("fingerprint_warning"):
+        lines += ["", f"Warning: {names[0]} and {name_b} were {result['fingerprint_warning']}"]
     return "\n".join(lines)

@@ -256,6 +256,8 @@ def _cmd_claims(args: argparse.Namespace) -> None:
     for line in md.read_text().splitlines():
         if line.startswith("## Claim "):
             print(line.removeprefix("## "))
+        elif line.startswith("- Warning: "):  # runs of other code's arithmetic compared
+            print(line.removeprefix("- "))
     print(md)
 
 

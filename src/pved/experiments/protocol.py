@@ -34,6 +34,7 @@ from pved.experiments.protocol_plan import (
 )
 from pved.experiments.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
 from pved.models.train import shared_subspace_collapsed
+from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
 from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 from pved.spec import get_preset
@@ -284,6 +285,7 @@ def _summarize(
         "wall_s": report.wall_s if report else None,
     }
     panels = []
+    every_run: list[str] = []
     for pair in plan.pairs:
         preset = get_preset(pair)
         metric = preset.metric
@@ -327,6 +329,11 @@ def _summarize(
                     }
                     for j in done
                 ]
+                # the code each run was made by (pved.provenance): a group made under two
+                # fingerprints, or none, may differ by the code's arithmetic
+                entry["fingerprints"] = count_fingerprints(
+                    [fingerprint_of_run(j.run_dir) if j.run_dir else UNKNOWN for j in done]
+                )
                 # the shaping term against the env's reward: why a β does what it does
                 scale = reward_scale([j.run_dir for j in done if j.run_dir is not None])
                 if scale is not None:
@@ -342,11 +349,14 @@ def _summarize(
         for method, reach in steps_to_baseline_finals(curves, (NO_TRANSFER, ORACLE)).items():
             methods[method].update(reach)
         summary["pairs"][pair] = {"metric": metric, "methods": methods}
+        every_run.extend(fp for m in methods.values() for fp in _each_run(m))
         if panel is not None:
             panels.append(panel)
             plot_panels([panel], out / f"curves-{pair}.png")
     if panels:
         plot_panels(panels, out / "curves.png")
+    # the numeric fingerprints the finished transfer runs were made under, with counts
+    summary["fingerprints"] = count_fingerprints(every_run)
     atomic_write_json(out / "selection.json", plan.selection)
     atomic_write_json(out / "summary.json", summary)
     atomic_write_bytes(out / "summary.md", _markdown(summary, plan).encode())
@@ -386,6 +396,12 @@ def _scale_cells(method_summary: Mapping[str, Any], method: str) -> tuple[str, s
     return shaping, env
 
 
+def _each_run(method_summary: Mapping[str, Any]) -> list[str]:
+    """The fingerprint of each of a method's finished runs, from its counts."""
+    counts = method_summary.get("fingerprints", {})
+    return [fp for fp, n in counts.items() for _ in range(n)]
+
+
 def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
     from pved.analysis.curves import reach_cell
 
@@ -399,6 +415,10 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
         "with 95% stratified-bootstrap confidence intervals (rliable).",
         "",
     ]
+    fingerprints = summary.get("fingerprints") or {}
+    if fingerprints:
+        made = ", ".join(f"{fp} ({n} runs)" for fp, n in fingerprints.items())
+        lines += [f"Numeric fingerprints the runs were made under: {made}.", ""]
     for pair, info in summary["pairs"].items():
         metric = info["metric"]
         lines += [
