@@ -16,6 +16,13 @@ oracle) draws its seeds only, the runs of one seed together. And the steps each 
 mean curve takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`),
 the paper's "steps to reach the baseline's final performance" with B as the baseline.
 
+Then A against B by Taylor & Stone's transfer measures (AUC, jumpstart, steps to B's
+final mean per run; :mod:`pved.analysis.transfer_measures`; one pair, so Holm leaves the
+p-values as they are) and, with ``--aa`` runs (a second set of B made by the same code on
+other seeds), the A/A check beside every difference: AA − B with its interval, and
+"inside A/A noise" where |A − B| is no larger than the largest |difference| that interval
+admits; "no A/A set" without them.
+
 Only files are read: each run's ``config.json``, ``result.json`` and ``metrics.jsonl``.
 """
 
@@ -30,6 +37,8 @@ import numpy as np
 
 from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
 from pved.analysis.judge import drop, early_score, eval_curve
+from pved.analysis.run_curves import curve_score, steps_to_threshold
+from pved.analysis.transfer_measures import INSIDE_AA, MEASURE_NAMES, NO_AA, aa_noise
 from pved.errors import PvedError
 from pved.provenance import count_fingerprints, fingerprint_mismatch, run_fingerprint
 from pved.runs import read_json
@@ -38,6 +47,8 @@ from pved.spec import get_preset
 REPS = 20000
 """Bootstrap resamples per interval (as ``pved claims``)."""
 SCORES = ("final", "early", "drop")
+MEASURES = ("auc", "jumpstart", "reach")
+"""Taylor & Stone's measures beside the scores (the final one is among the scores)."""
 
 
 def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
@@ -166,7 +177,12 @@ def _resampling(ga: dict[str, Any], gb: dict[str, Any]) -> str:
 
 
 def compare_runs(
-    a: Sequence[Path], b: Sequence[Path], names: tuple[str, str] = ("A", "B"), *, seed: int = 0
+    a: Sequence[Path],
+    b: Sequence[Path],
+    names: tuple[str, str] = ("A", "B"),
+    *,
+    seed: int = 0,
+    aa: Sequence[Path] | None = None,
 ) -> dict[str, Any]:
     """Compare the finished transfer runs under ``a`` with those under ``b`` (paths as
     :func:`find_transfer_runs` takes them). Every run must be of one pair and one length.
@@ -178,17 +194,25 @@ def compare_runs(
     or the line saying the groups were not all made under one known numeric fingerprint,
     "diff": {score: {"diff", "diff_ci", "p"}}}`` (each group also lists ``fingerprints``:
     the runs made under each), differences A − B (``p``: the bootstrap p-value of 0). Raises
-    PvedError (one line) for bad input."""
+    PvedError (one line) for bad input.
+
+    ``aa``: runs of B's kind made again on other seeds (:func:`_measures`); the result
+    also holds ``measures`` (A − B by AUC, jumpstart and steps to B's final), ``aa``
+    (AA − B of every score and measure, or "no A/A set") and, in each difference,
+    ``inside_aa``."""
     name_a, name_b = names
     if name_a == name_b:
         raise PvedError(f"the two groups need different names, got {name_a!r} twice")
     dirs_a, dirs_b = find_transfer_runs(a), find_transfer_runs(b)
-    both = {d.resolve() for d in dirs_a} & {d.resolve() for d in dirs_b}
-    if both:
-        raise PvedError(f"{sorted(both)[0]} is in both groups")
+    dirs_aa = find_transfer_runs(aa) if aa else []
+    for one, other in ((dirs_a, dirs_b), (dirs_a, dirs_aa), (dirs_b, dirs_aa)):
+        both = {d.resolve() for d in one} & {d.resolve() for d in other}
+        if both:
+            raise PvedError(f"{sorted(both)[0]} is in both groups")
     runs_a, runs_b = [_load_run(d) for d in dirs_a], [_load_run(d) for d in dirs_b]
+    runs_aa = [_load_run(d) for d in dirs_aa]
     first = runs_a[0]
-    for run in runs_a + runs_b:
+    for run in runs_a + runs_b + runs_aa:
         if run["pair"] != first["pair"]:
             raise PvedError(
                 f"{run['dir']} is a run of {run['pair']!r}, {first['dir']} of "
@@ -201,7 +225,8 @@ def compare_runs(
             )
     metric = get_preset(first["pair"]).metric
     ga, gb = _group(name_a, runs_a, metric), _group(name_b, runs_b, metric)
-    if not np.array_equal(ga["curve"].steps, gb["curve"].steps):
+    gaa = _group(f"{name_b} A/A", runs_aa, metric) if runs_aa else None
+    if any(not np.array_equal(g["curve"].steps, gb["curve"].steps) for g in (ga, gaa) if g):
         raise PvedError(
             "the two groups are evaluated at different steps: "
             "compare runs of one evaluation schedule"
@@ -253,7 +278,103 @@ def compare_runs(
         # None where B's mean curve ends where it began: it learned nothing to reach
         key = f"steps_to_{name_b}_final"
         out["groups"][g["name"]][key] = reach[g["name"]].get(key)
+    _measures(out, ga, gb, gaa, seed)
     return out
+
+
+def _per_run(g: dict[str, Any], score: str, threshold: float) -> np.ndarray:
+    """A group's per-run ``score``: its own (final, early, drop) or off its curves (AUC,
+    jumpstart, steps to ``threshold``)."""
+    if score in g["scores"]:
+        return np.asarray(g["scores"][score])
+    c = g["curve"]
+    if score == "reach":
+        return np.asarray([steps_to_threshold(c.steps, v, threshold) for v in c.values])
+    return np.asarray([curve_score(score, c.steps, v) for v in c.values])
+
+
+def _measures(
+    out: dict[str, Any],
+    ga: dict[str, Any],
+    gb: dict[str, Any],
+    gaa: dict[str, Any] | None,
+    seed: int,
+) -> None:
+    """Into ``out``: ``measures``, A − B by :data:`MEASURES` (``reach``: per run, the
+    first evaluation step at B's final mean, a run that never gets there one evaluation
+    past its last; left out with a reason where B did not improve); ``aa``, AA − B of
+    every score and measure with its noise floor
+    (:func:`pved.analysis.transfer_measures.aa_noise`), or "no A/A set"; and beside each
+    difference ``inside_aa``. The same bootstrap as the scores'."""
+    mean_b = gb["curve"].mean
+    threshold = float(mean_b[-1])
+    improved = threshold > float(mean_b[0])
+
+    def difference(g1: dict[str, Any], score: str) -> dict[str, Any]:
+        d = bootstrap_difference(
+            _per_run(g1, score, threshold),
+            _per_run(gb, score, threshold),
+            reps=REPS,
+            seed=seed,
+            seeds_a=g1["seeds"],
+            seeds_b=gb["seeds"],
+            sources_a=g1["sources"],
+            sources_b=gb["sources"],
+        )
+        return {"diff": d["diff"], "diff_ci": d["diff_ci"], "p": d["tests"][0]["p"]}
+
+    out["measures"] = {}
+    for measure in MEASURES:
+        if measure == "reach" and not improved:
+            out["measures"][measure] = {"reason": f"{gb['name']} did not improve"}
+        else:
+            out["measures"][measure] = difference(ga, measure)
+    out["aa"] = NO_AA
+    if gaa is not None:
+        out["aa"] = {}
+        for score in (*SCORES, *MEASURES):
+            if score in out["measures"] and "reason" in out["measures"][score]:
+                continue
+            d = difference(gaa, score)
+            out["aa"][score] = {
+                "diff": d["diff"],
+                "diff_ci": d["diff_ci"],
+                "noise": aa_noise(d["diff_ci"]),
+            }
+    for score, d in [*out["diff"].items(), *out["measures"].items()]:
+        if "diff" in d:
+            noise = out["aa"].get(score, {}).get("noise") if gaa is not None else None
+            d["inside_aa"] = None if noise is None else abs(d["diff"]) <= noise
+
+
+def _measure_lines(result: dict[str, Any]) -> list[str]:
+    """The measures' lines of :func:`format_comparison`, and the A/A check's."""
+    names = list(result["groups"])
+    lines = []
+    for measure in MEASURES:
+        d = result["measures"][measure]
+        if "reason" in d:
+            lines.append(f"{MEASURE_NAMES[measure]}: – ({d['reason']})")
+            continue
+        fmt = "{:+,.0f}" if measure == "reach" else "{:+.3f}"
+        lo, hi = (fmt.format(x) for x in d["diff_ci"])
+        lines.append(
+            f"{MEASURE_NAMES[measure]}: {names[0]} − {names[1]} = {fmt.format(d['diff'])} "
+            f"[{lo}, {hi}], p = {d['p']:.3g}"
+        )
+    aa = result["aa"]
+    if isinstance(aa, str):
+        return [*lines, f"A/A: {aa} (give --aa runs of {names[1]} made on other seeds)"]
+    lines.append(f"A/A ({names[1]} again on other seeds − {names[1]}):")
+    for score, d in aa.items():
+        fmt = "{:+,.0f}" if score == "reach" else "{:+.3f}"
+        lo, hi = (fmt.format(x) for x in d["diff_ci"])
+        flagged = result["diff"].get(score) or result["measures"].get(score) or {}
+        flag = f": {names[0]} − {names[1]} is {INSIDE_AA}" if flagged.get("inside_aa") else ""
+        lines.append(
+            f"- {MEASURE_NAMES.get(score, score)}: {fmt.format(d['diff'])} [{lo}, {hi}]{flag}"
+        )
+    return lines
 
 
 def format_comparison(result: dict[str, Any]) -> str:
@@ -291,6 +412,8 @@ def format_comparison(result: dict[str, Any]) -> str:
             f"{score}: {names[0]} − {name_b} = {d['diff']:+.3f} {interval(d['diff_ci'])}, "
             f"p = {d['p']:.3g}"
         )
+    if "measures" in result:  # absent from a comparison written before them
+        lines += ["", *_measure_lines(result)]
     if result.get("fingerprint_warning"):
         lines += ["", f"Warning: {names[0]} and {name_b} were {result['fingerprint_warning']}"]
     return "\n".join(lines)

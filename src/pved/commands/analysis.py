@@ -305,7 +305,7 @@ def _cmd_compare(args: argparse.Namespace) -> None:
 
     if args.json is not None:
         check_writable("--json", args.json, directory=False)
-    result = compare_runs(args.a, args.b, (args.names[0], args.names[1]))
+    result = compare_runs(args.a, args.b, (args.names[0], args.names[1]), aa=args.aa)
     if args.json is not None:
         atomic_write_json(args.json, result)
     print(format_comparison(result))
@@ -327,6 +327,14 @@ def add_compare(v: Verbs) -> None:
     p.add_argument("--a", nargs="+", type=Path, required=True, metavar="DIR")
     p.add_argument("--b", nargs="+", type=Path, required=True, metavar="DIR")
     p.add_argument("--names", nargs=2, default=["A", "B"], metavar=("NAME_A", "NAME_B"))
+    p.add_argument(
+        "--aa",
+        nargs="+",
+        type=Path,
+        metavar="DIR",
+        help="the A/A set: runs made as --b's were, on other seeds; each difference is "
+        "shown beside AA - B and flagged 'inside A/A noise' where it is no larger",
+    )
     p.add_argument("--json", type=Path, help="also write the numbers here (atomically)")
     p.set_defaults(func=_cmd_compare)
 
