@@ -47,6 +47,7 @@ from pved.analysis.judge import (
     num,
 )
 from pved.provenance import UNKNOWN, fingerprint_mismatch
+from pved.record_paths import record_path
 
 FAMILY_ALPHA = 0.05
 """Family-wise error rate of the Holm–Bonferroni view over one judgement's tests."""
@@ -232,14 +233,15 @@ def judge_claims(dirs: Sequence[Path], *, reps: int = REPS, seed: int = SEED) ->
     made_under, warnings = _fingerprints(pairs, claims)
     inputs: dict[str, dict[str, Any]] = {}
     for p in pairs.values():
-        inputs.setdefault(str(p.directory), {"dir": str(p.directory), "budget": p.budget})
-        inputs[str(p.directory)].setdefault("pairs", []).append(p.name)
+        where = record_path(p.directory)
+        inputs.setdefault(where, {"dir": where, "budget": p.budget})
+        inputs[where].setdefault("pairs", []).append(p.name)
     return {
         "inputs": list(inputs.values()),
         "pairs": {
             p.name: {
                 "metric": p.metric,
-                "dir": str(p.directory),
+                "dir": record_path(p.directory),
                 "budget": p.budget,
                 "runs": {m: len((e or {}).get("runs", [])) for m, e in p.methods.items()},
             }

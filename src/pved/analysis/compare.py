@@ -41,6 +41,7 @@ from pved.analysis.run_curves import curve_score, steps_to_threshold
 from pved.analysis.transfer_measures import INSIDE_AA, MEASURE_NAMES, NO_AA, aa_noise
 from pved.errors import PvedError
 from pved.provenance import count_fingerprints, fingerprint_mismatch, run_fingerprint
+from pved.record_paths import record_path
 from pved.runs import read_json
 from pved.spec import get_preset
 
@@ -264,7 +265,7 @@ def compare_runs(
                 g["name"],
                 {
                     "runs": len(g["runs"]),
-                    "dirs": [str(r["dir"]) for r in g["runs"]],
+                    "dirs": [record_path(r["dir"]) for r in g["runs"]],
                     "seeds": [r["seed"] for r in g["runs"]],
                     "sources": g["sources"],
                     "fingerprints": made_under[0 if key == "a" else 1],

@@ -28,6 +28,7 @@ from pved.analysis.curves import reach_cell
 from pved.checks import check_writable
 from pved.envs.registry import env_id
 from pved.errors import PvedError
+from pved.record_paths import resolve_record_path
 from pved.runs import atomic_write_bytes, read_json
 from pved.spec import get_preset
 
@@ -264,7 +265,7 @@ def _add_method_videos(
         runs = m.get("runs") or []
         if not runs or not runs[0].get("result"):
             continue
-        policy = Path(runs[0]["result"]).parent / "policy.pt"
+        policy = resolve_record_path(runs[0]["result"], directory).parent / "policy.pt"
         if not policy.is_file():
             continue
         out = directory / "videos" / f"{method}.gif"

@@ -55,6 +55,7 @@ from pved.envs.registry import make_batched
 from pved.errors import PvedError
 from pved.experiments.protocol_plan import transfer_run_method
 from pved.models.registry import load_model
+from pved.record_paths import record_path
 from pved.rl.policy import load_policy
 from pved.runs import atomic_write_json, run_file, run_path
 from pved.transfer.shaping import LatentShaping
@@ -179,7 +180,7 @@ def success_map(
                 "own_lower_share": float(np.mean(distance[far] < distance_reflected[far])),
             }
     return {
-        "policy": str(policy_path),
+        "policy": record_path(policy_path),
         "agent": agent,
         "grid": grid,
         "copies": copies,
@@ -338,7 +339,7 @@ def protocol_summary(protocol: Path, grid: int, copies: int, seed: int) -> dict[
         }
     for method, count in without_policy.items():
         methods.setdefault(method, {"runs": 0, "runs_without_policy": count})
-    return {"protocol": str(protocol), "grid": grid, "copies": copies, "seed": seed,
+    return {"protocol": record_path(protocol), "grid": grid, "copies": copies, "seed": seed,
             "shaping_measured_under": measured_under, "methods": methods,
             "runs": {m: rs for m, rs in runs.items()}}  # fmt: skip
 

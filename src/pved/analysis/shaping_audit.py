@@ -41,6 +41,7 @@ from pved.checks import check_int, check_number, check_seed, check_writable, nam
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
+from pved.record_paths import record_path
 from pved.rl.networks import ActorCritic, ObsNormalizer, RunningMeanStd
 from pved.rl.policy import Policy
 from pved.rl.ppo import PPOConfig
@@ -375,8 +376,8 @@ def audit_pair(
     probe.close()
     result = {
         "pair": pair,
-        "model": str(model_path),
-        "bank": str(bank_path),
+        "model": record_path(model_path),
+        "bank": record_path(bank_path),
         **audit_transfer_start(
             name,
             model,
@@ -392,7 +393,7 @@ def audit_pair(
         ),
     }
     if policy_path is not None:
-        result["policy"] = str(policy_path)
+        result["policy"] = record_path(policy_path)
     if out is not None:
         atomic_write_json(Path(out), result)
     return result
@@ -435,7 +436,7 @@ def likelihood_reading(
     data = load_dataset(Path(dataset_path))
     data.check_agents(preset.source_agent, preset.target_agent)
     x_s, x_t = data.model_inputs()
-    result: dict[str, Any] = {"pair": pair, "dataset": str(dataset_path), "seed": seed}
+    result: dict[str, Any] = {"pair": pair, "dataset": record_path(dataset_path), "seed": seed}
     for variance, path in runs.items():
         cfg = dataclasses.replace(base, decoder_variance=variance)
         run = Run(

@@ -37,6 +37,7 @@ from pved.analysis.transferred import analyze_subspaces, bound
 from pved.errors import PvedError
 from pved.experiments.protocol_plan import ProtocolPlan, finished_results, indexed_policy
 from pved.experiments.runner import Job
+from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 from pved.spec import get_preset
 
@@ -133,8 +134,8 @@ def subspaces_report(
         "run": chosen["key"],
         "final": chosen[metric],
         "metric": metric,
-        "model": str(model),
-        "source_policy": str(source),
+        "model": record_path(model),
+        "source_policy": record_path(source),
         "source_seed": source_seed,
         "episodes": episodes,
     }

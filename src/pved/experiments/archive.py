@@ -48,8 +48,9 @@ from typing import Any
 
 from pved.checks import check_writable
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
+from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results, relative_plan
 from pved.experiments.stages import train_model, train_policy, transfer
+from pved.record_paths import record_path
 from pved.runs import RESTORED_FROM, atomic_write_bytes, atomic_write_json, repoint_result
 
 RUNS = "runs"
@@ -99,6 +100,14 @@ def _archived_files(job_fn: Any, method: str | None, run_dir: Path) -> Iterator[
         yield name, (run_dir / name).read_bytes()
 
 
+def _plan_record(protocol_dir: Path) -> bytes:
+    """The protocol's ``protocol.json`` as a record holds it: a plan written before paths
+    in records were relative gets them relative (:func:`relative_plan`), in the layout
+    ``atomic_write_json`` gives, so a plan already relative is copied byte for byte."""
+    plan = json.loads((protocol_dir / PLAN_FILE).read_text())
+    return (json.dumps(relative_plan(plan), indent=2) + "\n").encode()
+
+
 def _write_if_changed(path: Path, content: bytes) -> bool:
     """Write ``content`` to ``path`` atomically unless it holds it already; True if written."""
     if path.exists() and path.read_bytes() == content:
@@ -119,7 +128,7 @@ def save_archive(protocol_dir: Path | str, archive_dir: Path | str) -> dict[str,
     results = finished_results(plan)
     counts = {"written": 0, "unchanged": 0}
     archive.mkdir(parents=True, exist_ok=True)
-    _write_if_changed(archive / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
+    _write_if_changed(archive / PLAN_FILE, _plan_record(plan.out))
     for job in plan.expand(results):
         if job.key not in results or job.run_dir is None:
             continue
@@ -160,10 +169,13 @@ def save_summary(protocol_dir: Path | str, summary_dir: Path | str) -> dict[str,
         rel = str(job.run_dir.relative_to(plan.runs))
         # where a run was restored from is this machine's business, not the record's
         result = {k: v for k, v in results[job.key].items() if k != RESTORED_FROM}
+        for key in ("policy", "model", "dataset", "bank"):  # its files, as the protocol holds them
+            if isinstance(result.get(key), str):
+                result[key] = record_path(result[key], plan.out)
         runs[rel] = {"result": result, "config": config, "curve": curve}
     out = Path(summary_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _write_if_changed(out / PLAN_FILE, (plan.out / PLAN_FILE).read_bytes())
+    _write_if_changed(out / PLAN_FILE, _plan_record(plan.out))
     text = json.dumps(dict(sorted(runs.items())), indent=1, sort_keys=True) + "\n"
     written = _write_if_changed(out / SUMMARY_FILE, text.encode())
     return {"runs": len(runs), "written": int(written)}
