@@ -1,0 +1,343 @@
+"""Pre-registration of a method beyond the paper before its paper-budget evaluation
+(docs/decisions/protocol.md, "Pre-registration").
+
+A method the paper does not define (``pved-align``, ...) is designed here, after looking
+at runs; its paper-budget evaluation is evidence only if what it evaluates was fixed
+before: the method and every hyper-parameter (β and the model initialisation per pair,
+the recipe's form and anneal) chosen on tuning seeds only and written to a file
+committed to git before the first evaluation run starts. ``pved protocol --budget paper
+--methods X ... --preregistration FILE`` checks that (:func:`check_gate`, before any
+work): the file is tracked by git, unmodified in the working tree, last changed in a
+commit that is an ancestor of HEAD (``git log HEAD -- FILE``) and, where the protocol's
+evaluation runs of X have started, committed before the first of them started; its
+method, budget, seed counts and recipe are the protocol's; and the selection used is the
+file's (the file's β and init are the selection, or equal to ``--selection-from``'s).
+Without a valid file the protocol refuses to start, unless ``--exploratory`` is given:
+then X's results are marked ``exploratory`` in ``summary.json``, and ``pved claims`` and
+``pved scoreboard`` print that label. Paper methods and the references are not gated;
+nor is any budget but the paper's (``paper``, ``paper-wide``).
+
+The file (TOML)::
+
+    method = "pved-align"
+    budget = "paper"                  # the budget whose evaluation it registers
+    date = 2026-12-06                 # when the choices were made
+    evaluation_seeds = 5              # per source policy (the budget's count)
+    source_policies = 3
+    tuning_seeds = [2000, 4000, 6000] # where β and init were chosen (no evaluation seed)
+    tuning_budget = "quick"           # the budget of those tuning runs
+    [settings]                        # the recipe (pved.transfer.methods.Method fields)
+    model = "pved"
+    shaping_form = "align"
+    [pairs.reacher]
+    beta = 0.1
+    init = 0
+
+A run's start: the earliest of the time this protocol first let X's evaluation runs
+start (``OUT/preregistration.json``, written before they can) and the ``config.json``
+times of X's evaluation run directories already there (in ``OUT`` or a ``--stages-from``
+directory); a protocol older than this check has only the latter, an upper bound.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import subprocess
+import sys
+import time
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pved.config import get_budget
+from pved.errors import PvedError
+from pved.experiments.protocol_plan import ProtocolPlan
+from pved.record_paths import record_path
+from pved.runs import atomic_write_json
+from pved.transfer.methods import REFERENCE_METHODS, get_method
+
+RECORD = "preregistration.json"
+"""A protocol directory's record of its gated methods' status (pre-registered or
+exploratory) and of when their evaluation runs were first let start."""
+EXPLORATORY = "exploratory"
+PREREGISTERED = "pre-registered"
+PAPER_STEPS = "paper"
+"""The budgets gated: those whose runs are the paper's length (``paper``, ``paper-wide``)."""
+_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "method": str,
+    "budget": str,
+    "date": (datetime.date, datetime.datetime),
+    "evaluation_seeds": int,
+    "source_policies": int,
+    "tuning_seeds": list,
+    "pairs": dict,
+}
+
+
+def gated_methods(methods: Sequence[str], budget: str) -> list[str]:
+    """The methods of ``methods`` whose evaluation at ``budget`` needs a pre-registration:
+    beyond the paper, not a reference, at a budget of the paper's length."""
+    if get_budget(budget).steps_budget != PAPER_STEPS:
+        return []
+    return [m for m in methods if not get_method(m).paper and m not in REFERENCE_METHODS]
+
+
+def _git(path: Path, *args: str) -> str:
+    """``git ARGS`` in ``path``'s directory: its stdout, or PvedError (one line)."""
+    try:
+        done = subprocess.run(
+            ["git", "-C", str(path.parent), *args], capture_output=True, text=True, check=False
+        )
+    except OSError as exc:
+        raise PvedError(f"{path}: git cannot be run ({exc})") from None
+    if done.returncode != 0:
+        why = " ".join(done.stderr.split()) or f"git {args[0]} failed"
+        raise PvedError(f"{path}: {why}")
+    return done.stdout.strip()
+
+
+def committed(path: Path) -> tuple[str, float]:
+    """(commit, commit time) of the commit that last changed ``path``, found from HEAD (so
+    an ancestor of HEAD); PvedError where the file is not tracked, differs from HEAD's
+    (in the working tree or the index), or was never committed."""
+    if not path.is_file():
+        raise PvedError(f"--preregistration {path}: no such file")
+    try:
+        _git(path, "ls-files", "--error-unmatch", "--", path.name)
+    except PvedError:
+        raise PvedError(f"--preregistration {path}: not tracked by git (commit it)") from None
+    if _git(path, "status", "--porcelain", "--untracked-files=no", "--", path.name):
+        raise PvedError(f"--preregistration {path}: changed since its last commit (commit it)")
+    line = _git(path, "log", "-1", "--format=%H %ct", "HEAD", "--", path.name)
+    if not line:
+        raise PvedError(f"--preregistration {path}: in no commit of HEAD's history")
+    commit, when = line.split()
+    return commit, float(when)
+
+
+def read_file(path: Path) -> dict[str, Any]:
+    """The pre-registration at ``path``, its fields checked for presence and type."""
+    try:
+        data = tomllib.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        why = " ".join(str(exc).split())
+        raise PvedError(f"--preregistration {path}: unreadable ({why})") from None
+    for name, kind in _FIELDS.items():
+        if not isinstance(data.get(name), kind) or isinstance(data.get(name), bool):
+            raise PvedError(f"--preregistration {path}: no {name!r} of the right type")
+    for pair, choice in data["pairs"].items():
+        beta, init = (choice.get(k) if isinstance(choice, dict) else None for k in ("beta", "init"))
+        if not isinstance(beta, int | float) or isinstance(beta, bool) or not math.isfinite(beta):
+            raise PvedError(f"--preregistration {path}: pairs.{pair} has no number 'beta'")
+        if not isinstance(init, int) or isinstance(init, bool) or init < 0:
+            raise PvedError(f"--preregistration {path}: pairs.{pair} has no 'init' >= 0")
+    if not all(isinstance(s, int) for s in data["tuning_seeds"]):
+        raise PvedError(f"--preregistration {path}: 'tuning_seeds' are not all integers")
+    return data
+
+
+def _check_design(path: Path, data: Mapping[str, Any], pairs: Sequence[str], budget: str) -> None:
+    """The file registers this protocol's design: its budget, seed counts and pairs, the
+    method's recipe, and tuning seeds that the budget never evaluates on."""
+    b = get_budget(budget)
+    wanted = {
+        "budget": budget,
+        "evaluation_seeds": len(b.evaluation_seeds),
+        "source_policies": b.source_policies,
+    }
+    for name, value in wanted.items():
+        if data[name] != value:
+            raise PvedError(
+                f"--preregistration {path}: {name} {data[name]!r}, the protocol's is {value!r}"
+            )
+    overlap = sorted(set(data["tuning_seeds"]) & set(b.evaluation_seeds))
+    if overlap:
+        raise PvedError(f"--preregistration {path}: tuned on evaluation seeds {overlap}")
+    missing = [p for p in pairs if p not in data["pairs"]]
+    if missing:
+        raise PvedError(f"--preregistration {path}: no choice for {', '.join(missing)}")
+    recipe = get_method(data["method"])
+    for name, value in (data.get("settings") or {}).items():
+        if not hasattr(recipe, name):
+            raise PvedError(f"--preregistration {path}: settings.{name} is no field of a method")
+        have = getattr(recipe, name)
+        if (list(have) if isinstance(have, tuple) else have) != value:
+            raise PvedError(
+                f"--preregistration {path}: settings.{name} = {value!r}, but "
+                f"{data['method']}'s is {have!r}"
+            )
+
+
+def _selection(
+    path: Path, data: Mapping[str, Any], pairs: Sequence[str], fixed: dict[str, Any]
+) -> None:
+    """The file's β and init of each pair: equal to ``fixed``'s (``--selection-from``)
+    where it has one, else put into ``fixed`` as the selection, in place."""
+    method = data["method"]
+    for pair in pairs:
+        mine = data["pairs"][pair]
+        used = fixed.get(pair, {}).get(method)
+        if used is None:
+            fixed.setdefault(pair, {})[method] = {
+                "beta": float(mine["beta"]),
+                "init": int(mine["init"]),
+                "protocol": record_path(path),
+                "budget": str(data.get("tuning_budget", "?")),
+                "tuning_seeds": list(data["tuning_seeds"]),
+                "candidates": [],
+            }
+            continue
+        if not math.isclose(float(used["beta"]), float(mine["beta"]), rel_tol=1e-9) or int(
+            used["init"]
+        ) != int(mine["init"]):
+            raise PvedError(
+                f"--preregistration {path}: {method} on {pair} registered beta "
+                f"{mine['beta']:g} init {mine['init']}, the selection used is beta "
+                f"{float(used['beta']):g} init {used['init']}"
+            )
+
+
+def _record(out: Path) -> dict[str, Any]:
+    """``OUT/preregistration.json`` (empty where there is none or it is unreadable)."""
+    try:
+        data = json.loads((Path(out) / RECORD).read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def evaluation_started(
+    plan: ProtocolPlan, method: str, others: Sequence[Path | str] = ()
+) -> float | None:
+    """When ``method``'s first evaluation run of ``plan`` started, as far as the files
+    say (module docstring); None where none has."""
+    plan.expand({})  # the selections made elsewhere (fixed) give the evaluation runs
+    times: list[float] = []
+    allowed = _record(plan.out).get("evaluation_allowed_at", {}).get(method)
+    if isinstance(allowed, int | float):
+        times.append(float(allowed))
+    roots = [plan.runs, *(Path(o).resolve() / "runs" for o in others)]
+    for pair in plan.pairs:
+        for job in plan.evaluation_jobs(pair, method):
+            if job.run_dir is None:
+                continue
+            rel = job.run_dir.relative_to(plan.runs)
+            for root in roots:
+                config = root / rel / "config.json"
+                if config.is_file():
+                    times.append(config.stat().st_mtime)
+    return min(times) if times else None
+
+
+@dataclass
+class Gate:
+    """What :func:`check_gate` decided: the selections to use (``fixed``: the protocol's
+    ``--selection-from`` ones with each pre-registration's added) and each gated method's
+    status, for :func:`write_record`."""
+
+    fixed: dict[str, dict[str, Any]]
+    status: dict[str, dict[str, Any]]
+
+
+def check_gate(
+    pairs: Sequence[str],
+    methods: Sequence[str],
+    budget: str,
+    out: Path | str,
+    fixed: Mapping[str, Mapping[str, Any]] | None,
+    files: Sequence[Path | str] = (),
+    exploratory: bool = False,
+    stages_from: Sequence[Path | str] = (),
+) -> Gate:
+    """Check each gated method (:func:`gated_methods`) of a protocol against its
+    pre-registration among ``files`` (one file a method; module docstring), before any
+    work. Raises PvedError (one line) for a gated method without a valid file, unless
+    ``exploratory`` (the method is then marked exploratory, and why is printed), and for
+    a file that names no gated method of the protocol."""
+    merged: dict[str, Any] = {p: dict(m) for p, m in (fixed or {}).items()}
+    gated = gated_methods(methods, budget)
+    by_method: dict[str, tuple[Path, dict[str, Any]]] = {}
+    for f in map(Path, files):
+        data = read_file(f)
+        if data["method"] not in gated:
+            raise PvedError(
+                f"--preregistration {f}: {data['method']} is not a method beyond the paper "
+                f"that this protocol evaluates at the paper's budget ({budget})"
+            )
+        if data["method"] in by_method:
+            raise PvedError(f"--preregistration: two files for {data['method']}")
+        by_method[data["method"]] = (f, data)
+    status: dict[str, dict[str, Any]] = {}
+    for method in gated:
+        if method not in by_method:
+            if not exploratory:
+                raise PvedError(
+                    f"{method} is beyond the paper and the {budget} budget evaluates it: give "
+                    "--preregistration FILE (committed before its evaluation runs start; "
+                    "docs/decisions/protocol.md) or --exploratory"
+                )
+            status[method] = {"status": EXPLORATORY, "why": "no pre-registration given"}
+            continue
+        path, data = by_method[method]
+        try:
+            commit, when = committed(path)
+            _check_design(path, data, pairs, budget)
+            trial = {p: {m: dict(s) for m, s in ms.items()} for p, ms in merged.items()}
+            _selection(path, data, pairs, trial)
+            plan = ProtocolPlan(pairs, methods, budget, Path(out), trial)
+            started = evaluation_started(plan, method, stages_from)
+            if started is not None and when >= started:
+                raise PvedError(
+                    f"--preregistration {path}: committed {_iso(when)} ({commit[:12]}), not "
+                    f"before {method}'s first evaluation run started ({_iso(started)})"
+                )
+        except PvedError as exc:
+            if not exploratory:
+                raise
+            print(f"{exc}; {method} runs as {EXPLORATORY}", file=sys.stderr)
+            status[method] = {"status": EXPLORATORY, "why": str(exc)}
+            continue
+        merged = trial
+        status[method] = {
+            "status": PREREGISTERED,
+            "file": record_path(path),
+            "commit": commit,
+            "committed": _iso(when),
+        }
+    return Gate(fixed=merged, status=status)
+
+
+def _iso(when: float) -> str:
+    return datetime.datetime.fromtimestamp(when, datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def write_record(out: Path | str, gate: Gate) -> None:
+    """``OUT/preregistration.json``: each gated method's status, and when its evaluation
+    runs were first let start (kept from an earlier run of the protocol, else now),
+    written atomically before the runs can start."""
+    if not gate.status:
+        return
+    earlier = _record(Path(out)).get("evaluation_allowed_at", {})
+    now = time.time()
+    allowed = {m: earlier.get(m, now) for m in gate.status}
+    atomic_write_json(
+        Path(out) / RECORD,
+        {"methods": gate.status, "evaluation_allowed_at": {**earlier, **allowed}},
+    )
+
+
+def mark_summary(out: Path | str, methods: dict[str, dict[str, Any]]) -> None:
+    """A pair's summary entries (``methods``), in place: a gated method's ``exploratory``
+    (True) or ``preregistration`` (file, commit, when), from ``OUT/preregistration.json``."""
+    for method, state in (_record(Path(out)).get("methods") or {}).items():
+        entry = methods.get(method)
+        if not isinstance(entry, dict) or not isinstance(state, dict):
+            continue
+        if state.get("status") == EXPLORATORY:
+            entry[EXPLORATORY] = True
+        elif state.get("status") == PREREGISTERED:
+            entry["preregistration"] = {k: state.get(k) for k in ("file", "commit", "committed")}

@@ -1,0 +1,218 @@
+"""Pre-registration: a method beyond the paper is evaluated at the paper's budget only
+with a committed file that fixed its choices first, or labelled exploratory."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pved.errors import PvedError
+from pved.experiments.preregistration import (
+    EXPLORATORY,
+    PREREGISTERED,
+    check_gate,
+    gated_methods,
+    mark_summary,
+    write_record,
+)
+
+T0 = 1_767_225_600  # 2026-01-01T00:00:00Z: when the file is committed
+REGISTERED = """\
+method = "pved-align"
+budget = "paper"
+date = 2025-12-31
+evaluation_seeds = 5
+source_policies = 3
+tuning_seeds = [2000, 4000, 6000]
+tuning_budget = "quick"
+[settings]
+model = "pved"
+shaping_form = "align"
+[pairs.reacher]
+beta = 0.1
+init = 2
+"""
+ALIGN = ["pved-align", "ppo"]
+
+
+def git(repo: Path, *args: str, when: int = T0) -> None:
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_DATE": f"@{when} +0000",
+        "GIT_COMMITTER_DATE": f"@{when} +0000",
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@example.org",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@example.org",
+    }
+    subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True, env=env)
+
+
+@pytest.fixture
+def registered(tmp_path: Path) -> Path:
+    """A git repository whose docs/preregistration/align.toml is committed at T0."""
+    repo = tmp_path / "repo"
+    (repo / "docs/preregistration").mkdir(parents=True)
+    git(repo, "init", "-q")
+    path = repo / "docs/preregistration/align.toml"
+    path.write_text(REGISTERED)
+    git(repo, "add", "docs/preregistration/align.toml")
+    git(repo, "commit", "-q", "-m", "pre-register pved-align")
+    return path
+
+
+def gate(out: Path, files: list[Path], **kwargs: Any) -> Any:
+    return check_gate(["reacher"], ALIGN, "paper", out, None, files, **kwargs)
+
+
+def test_only_methods_beyond_the_paper_at_the_papers_budget_are_gated() -> None:
+    every = ["pved", "pved-align", "pved-anneal", "gupta2017", "ppo", "ppo-aa", "oracle"]
+    assert gated_methods(every, "paper") == ["pved-align", "pved-anneal"]
+    assert gated_methods(every, "paper-wide") == ["pved-align", "pved-anneal"]
+    assert gated_methods(every, "quick") == gated_methods(every, "smoke") == []
+    # nothing to register: no error, no status
+    assert check_gate(["reacher"], ["pved", "ppo", "ppo-aa"], "paper", Path("x"), None).status == {}
+
+
+def test_without_a_file_the_protocol_refuses_unless_exploratory(tmp_path: Path) -> None:
+    with pytest.raises(PvedError, match=r"pved-align is beyond the paper.*--preregistration"):
+        gate(tmp_path / "out", [])
+    assert not (tmp_path / "out").exists()
+    status = gate(tmp_path / "out", [], exploratory=True).status
+    assert status == {"pved-align": {"status": EXPLORATORY, "why": "no pre-registration given"}}
+
+
+def test_a_committed_file_is_the_selection(tmp_path: Path, registered: Path) -> None:
+    result = gate(tmp_path / "out", [registered])
+    state = result.status["pved-align"]
+    assert state["status"] == PREREGISTERED and state["committed"] == "2026-01-01T00:00:00Z"
+    assert len(state["commit"]) == 40 and not os.path.isabs(state["file"])
+    chosen = result.fixed["reacher"]["pved-align"]
+    assert (chosen["beta"], chosen["init"], chosen["tuning_seeds"]) == (0.1, 2, [2000, 4000, 6000])
+    # --selection-from's selection must be the file's
+    screen = {"protocol": "q", "budget": "quick", "tuning_seeds": [2000], "candidates": []}
+    same = {"reacher": {"pved-align": {"beta": 0.1, "init": 2, **screen}}}
+    assert check_gate(["reacher"], ALIGN, "paper", tmp_path / "o", same, [registered]).fixed == same
+    other = {"reacher": {"pved-align": {"beta": 1.0, "init": 2, **screen}}}
+    with pytest.raises(
+        PvedError, match=r"registered beta 0\.1 init 2, the selection used is beta 1 "
+    ):
+        check_gate(["reacher"], ALIGN, "paper", tmp_path / "o", other, [registered])
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("untracked", "not tracked by git"),
+        ("modified", "changed since its last commit"),
+        ("staged", "changed since its last commit"),
+        ('budget = "quick"', "budget 'quick', the protocol's is 'paper'"),
+        ("evaluation_seeds = 27", "evaluation_seeds 27, the protocol's is 5"),
+        ("tuning_seeds = [2000, 20000]", r"tuned on evaluation seeds \[20000\]"),
+        (
+            '[settings]\nshaping_form = "eq10"',
+            "settings.shaping_form = 'eq10', but pved-align's is",
+        ),
+        ('method = "pved"', "pved is not a method beyond the paper"),
+        ("[pairs.walker-hopper]", "no choice for reacher"),
+        ("beta = 'x'", "pairs.reacher has no number 'beta'"),
+    ],
+)
+def test_an_invalid_file_is_refused_in_one_line(
+    tmp_path: Path, registered: Path, change: str, message: str
+) -> None:
+    repo = registered.parents[2]
+    if change == "untracked":
+        registered = registered.with_name("new.toml")
+        registered.write_text(REGISTERED)
+    elif change in ("modified", "staged"):
+        registered.write_text(REGISTERED + "# later\n")
+        if change == "staged":
+            git(repo, "add", str(registered.relative_to(repo)))
+    else:
+        key = change.split(" ")[0].split("\n")[0]
+        lines = [ln for ln in REGISTERED.splitlines() if not ln.startswith(key.split("=")[0])]
+        if key.startswith("[pairs"):
+            lines = REGISTERED.replace("[pairs.reacher]", change).splitlines()
+        elif key == "[settings]":
+            lines = REGISTERED.replace('[settings]\nmodel = "pved"\nshaping_form = "align"', change)
+            lines = lines.splitlines()
+        elif key.startswith("beta"):
+            lines = REGISTERED.replace("beta = 0.1", change).splitlines()
+        else:
+            lines = [change, *lines]
+        registered.write_text("\n".join(lines) + "\n")
+        git(repo, "commit", "-q", "-am", "change")
+    with pytest.raises(PvedError, match=message) as err:
+        gate(tmp_path / "out", [registered])
+    assert "\n" not in str(err.value)
+    if "not a method beyond" in message or "has no number" in message:
+        return  # a file of another method, or one unreadable, is refused even so
+    # --exploratory runs the method anyway, labelled, and says why
+    state = gate(tmp_path / "out", [registered], exploratory=True).status["pved-align"]
+    assert state["status"] == EXPLORATORY and message.split(" ")[0] in state["why"]
+
+
+def evaluation_run(out: Path, when: float) -> Path:
+    """An evaluation run directory of pved-align (the registered β and init) started at
+    ``when``."""
+    run = out / "runs/reacher/transfer/pved-align-beta0.1-init2-src1/seed40000"
+    run.mkdir(parents=True)
+    (run / "config.json").write_text("{}")
+    os.utime(run / "config.json", (when, when))
+    return run
+
+
+def test_the_commit_must_predate_the_first_evaluation_run(tmp_path: Path, registered: Path) -> None:
+    evaluation_run(tmp_path / "after", T0 + 60)
+    assert gate(tmp_path / "after", [registered]).status["pved-align"]["status"] == PREREGISTERED
+    evaluation_run(tmp_path / "before", T0 - 60)
+    with pytest.raises(PvedError, match="not before pved-align's first evaluation run started"):
+        gate(tmp_path / "before", [registered])
+    # a run copied in from --stages-from counts as well
+    with pytest.raises(PvedError, match="not before"):
+        gate(tmp_path / "after", [registered], stages_from=[tmp_path / "before"])
+    # the protocol's own record of when it first let the runs start, however late the
+    # runs' files were written since
+    out = tmp_path / "recorded"
+    out.mkdir()
+    (out / "preregistration.json").write_text(
+        json.dumps({"evaluation_allowed_at": {"pved-align": T0 - 1}})
+    )
+    evaluation_run(out, T0 + 3600)
+    with pytest.raises(PvedError, match="not before"):
+        gate(out, [registered])
+
+
+def test_the_record_keeps_the_first_start_and_marks_the_summary(
+    tmp_path: Path, registered: Path
+) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    write_record(out, gate(out, [], exploratory=True))
+    first = json.loads((out / "preregistration.json").read_text())["evaluation_allowed_at"]
+    methods: dict[str, Any] = {"pved-align": {"runs": []}, "ppo": {"runs": []}}
+    mark_summary(out, methods)
+    assert methods["pved-align"][EXPLORATORY] is True and EXPLORATORY not in methods["ppo"]
+    # a file committed after the protocol let the evaluation start cannot register it
+    git(
+        registered.parents[2],
+        "commit",
+        "-q",
+        "--allow-empty",
+        "-m",
+        "x",
+        when=int(first["pved-align"]) + 60,
+    )
+    registered.write_text(REGISTERED + "# again\n")
+    git(registered.parents[2], "commit", "-q", "-am", "again", when=int(first["pved-align"]) + 60)
+    with pytest.raises(PvedError, match="not before"):
+        gate(out, [registered])
+    write_record(out, gate(out, [], exploratory=True))
+    again = json.loads((out / "preregistration.json").read_text())["evaluation_allowed_at"]
+    assert again == first
