@@ -190,3 +190,23 @@ def test_a_plan_written_with_absolute_paths_is_the_same_plan_on_restart(
                           selection_from=screen)  # fmt: skip
     plan = json.loads((out / PLAN_FILE).read_text())
     assert plan == {**described, "pved_version": "0.0.9"}  # rewritten relative, kept
+
+
+def test_a_summary_run_result_is_read_relative_to_its_protocol_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pved.analysis.run_curves import metrics_file
+
+    key = "reacher/transfer/ppo/seed20000"
+    for where in (tmp_path / "reports" / "p", tmp_path):  # the protocol's run, and a decoy
+        (where / "runs" / key).mkdir(parents=True)
+        (where / "runs" / key / "metrics.jsonl").write_text("{}\n")
+    monkeypatch.chdir(tmp_path)  # where `pved transfer` leaves runs/ of its own
+    protocol = Path("reports/p")
+    run = {"key": "elsewhere", "result": f"runs/{key}/result.json"}
+    assert metrics_file(protocol, run) == protocol / "runs" / key / "metrics.jsonl"
+    older = {"key": "elsewhere", "result": str(tmp_path / "reports/p/runs" / key / "result.json")}
+    assert (
+        metrics_file(tmp_path / "moved", older)
+        == tmp_path / "reports/p/runs" / key / "metrics.jsonl"
+    )

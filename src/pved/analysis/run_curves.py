@@ -26,6 +26,7 @@ import numpy as np
 
 from pved.analysis.curves import eval_points, read_eval_points
 from pved.errors import PvedError
+from pved.record_paths import resolve_record_path
 
 EARLY_FRACTION = 0.25
 """Early score: evaluation points at steps <= this fraction of the run's last step."""
@@ -45,7 +46,8 @@ def metrics_file(directory: Path, run: dict[str, Any]) -> Path | None:
     when the protocol directory has moved since."""
     candidates = []
     if isinstance(run.get("result"), str):
-        candidates.append(Path(run["result"]).parent / "metrics.jsonl")
+        # relative to the protocol directory; an older summary's absolute path as it is
+        candidates.append(resolve_record_path(run["result"], directory).parent / "metrics.jsonl")
     if isinstance(run.get("key"), str):
         candidates.append(directory / "runs" / run["key"] / "metrics.jsonl")
     return next((p for p in candidates if p.is_file()), None)
