@@ -87,6 +87,7 @@ publish:
 	if [ -f reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json ]; then \
 		cp reports/$(PAIR)-$(BUDGET)/subspaces/peg_success.json \
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
+	$(PY) scripts/relative_record_paths.py  # paths a summary of an older pved left absolute
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
 
 # A screen of a method beyond the paper (a protocol of that method and ppo, in
@@ -100,6 +101,7 @@ publish-screen: $(STAMP)
 	cp reports/$(SCREEN)/protocol.json reports/$(SCREEN)/selection.json \
 		reports/$(SCREEN)/summary.json reports/$(SCREEN)/summary.md \
 		reports/$(SCREEN)/curves-*.png docs/protocol/$(SCREEN)/
+	$(PY) scripts/relative_record_paths.py  # paths a summary of an older pved left absolute
 	$(VENV)/bin/pved archive summary --protocol reports/$(SCREEN) --archive docs/protocol/$(SCREEN)
 	$(VENV)/bin/pved scoreboard --method $(METHOD) docs/protocol/$(SCREEN) --out docs/protocol/$(SCREEN)
 
