@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint docs system-deps clean reproduce publish publish-screen subspaces archive restore
+.PHONY: demo test lint docs system-deps clean reproduce publish publish-screen subspaces archive restore publish-docs
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -89,6 +89,12 @@ publish:
 			docs/protocol/$(PAIR)-$(BUDGET)/subspaces/; fi
 	$(PY) scripts/relative_record_paths.py  # paths a summary of an older pved left absolute
 	$(VENV)/bin/pved claims $(FINISHED_HERE) $(PUBLISHED_ONLY) --out docs/protocol/claims-$(BUDGET)
+
+# Every table of results in README.md, docs/results.md and docs/results/<pair>.md, made
+# anew from the committed records in docs/protocol/ (`pved publish`; run it after `make
+# publish` or `make publish-screen`); `pved publish --check` says whether any page is stale.
+publish-docs: $(STAMP)
+	$(VENV)/bin/pved publish
 
 # A screen of a method beyond the paper (a protocol of that method and ppo, in
 # reports/<SCREEN>/): its summaries, curves and runs' record into docs/protocol/<SCREEN>/,

@@ -365,6 +365,37 @@ def add_scoreboard(v: Verbs) -> None:
     p.set_defaults(func=_cmd_scoreboard)
 
 
+def _cmd_publish(args: argparse.Namespace) -> None:
+    from pved.analysis.publish import publish
+    from pved.errors import PvedError
+
+    if not (args.root / "docs" / "protocol").is_dir():
+        raise PvedError(f"--root {args.root}: no docs/protocol/ (want the repository's root)")
+    changed = publish(args.root, check=args.check)
+    if args.check and changed:
+        stale = ", ".join(changed)
+        raise PvedError(f"tables differ from their records in {stale}: run pved publish")
+    verb = "would change" if args.check else "changed"
+    print(f"{len(changed)} page(s) {verb}" + (f": {', '.join(changed)}" if changed else ""))
+
+
+def add_publish(v: Verbs) -> None:
+    sub = v.sub
+
+    p = sub.add_parser(
+        "publish",
+        help="regenerate the tables of results in README.md and docs/ from the records",
+        description="Every table between <!-- pved:table NAME --> and <!-- /pved:table --> in "
+        "README.md, docs/results.md and docs/results/<pair>.md, made anew from the committed "
+        "records (docs/protocol/*/summary.json and the runs' records there), with one "
+        "interval method: the two-level bootstrap over source policies and seeds. --check "
+        "writes nothing and fails if a page differs from its records.",
+    )
+    p.add_argument("--root", type=Path, default=Path("."), help="repository root (default: .)")
+    p.add_argument("--check", action="store_true", help="only say whether any page is stale")
+    p.set_defaults(func=_cmd_publish)
+
+
 def _cmd_analyze(args: argparse.Namespace) -> None:
     from pved.errors import PvedError
 
@@ -519,5 +550,6 @@ VERBS = (
     add_video,
     add_compare,
     add_scoreboard,
+    add_publish,
     add_analyze,
 )
