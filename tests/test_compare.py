@@ -107,6 +107,11 @@ def test_source_banks_are_resampled_with_the_seeds(tmp_path: Path) -> None:
     b = [make_run(tmp_path / "b", s, flat, 0.0) for s in (1, 2, 3)]
     result = compare_runs(a, b)
     assert result["groups"]["A"]["final"]["mean_ci"] == pytest.approx([0.0, 1.0])
+    # a group's interval is its own, whatever it is compared with: these runs as B
+    # (their draws made after the other group's) print the interval they print as A
+    values = np.random.default_rng(0).uniform(size=8)  # many distinct resampled means
+    c = [make_run(tmp_path / "c", s, flat, float(v)) for s, v in enumerate(values)]
+    assert compare_runs(a, c)["groups"]["B"]["final"] == compare_runs(c, b)["groups"]["A"]["final"]
     assert result["groups"]["A"]["sources"] == ["b0", "b0", "b1", "b1", "b2", "b2"]
     assert result["groups"]["B"]["sources"] is None
     lo, hi = result["diff"]["final"]["diff_ci"]

@@ -8,11 +8,13 @@ Per run, as in :mod:`pved.analysis.judge`: the final score (the pair's metric in
 points at steps <= 25% of its last) and the drop (its best evaluation point minus its
 last). For each, the difference of the two groups' means, A − B, with its 95% percentile
 bootstrap interval and the bootstrap p-value of 0, from the bootstrap ``pved claims`` uses
-(:func:`pved.analysis.curves.bootstrap_difference`, 2000 resamples, seed 0): two levels,
+(:func:`pved.analysis.curves.bootstrap_difference`, the project's resamples and seed): two levels,
 the source policies (a run's source bank, ``bank`` in its config; one draw for both
 groups where they ran with the same banks) and the PPO seeds (each group its own draw),
 every run of a drawn (source, seed) cell taken; a group without banks (plain PPO, the
-oracle) draws its seeds only, the runs of one seed together. And the steps each group's
+oracle) draws its seeds only, the runs of one seed together. Each group's own mean and
+interval are the same bootstrap of its runs alone (:func:`pved.analysis.curves.bootstrap_mean`).
+And the steps each group's
 mean curve takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`),
 the paper's "steps to reach the baseline's final performance" with B as the baseline.
 
@@ -35,7 +37,14 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import Curve, bootstrap_difference, steps_to_baseline_finals
+from pved.analysis.curves import (
+    REPS,
+    SEED,
+    Curve,
+    bootstrap_difference,
+    bootstrap_mean,
+    steps_to_baseline_finals,
+)
 from pved.analysis.judge import drop, early_score, eval_curve
 from pved.analysis.run_curves import curve_score, steps_to_threshold
 from pved.analysis.transfer_measures import INSIDE_AA, MEASURE_NAMES, NO_AA, aa_noise
@@ -45,8 +54,6 @@ from pved.record_paths import record_path
 from pved.runs import read_json
 from pved.spec import get_preset
 
-REPS = 20000
-"""Bootstrap resamples per interval (as ``pved claims``)."""
 SCORES = ("final", "early", "drop")
 MEASURES = ("auc", "jumpstart", "reach")
 """Taylor & Stone's measures beside the scores (the final one is among the scores)."""
@@ -182,7 +189,7 @@ def compare_runs(
     b: Sequence[Path],
     names: tuple[str, str] = ("A", "B"),
     *,
-    seed: int = 0,
+    seed: int = SEED,
     aa: Sequence[Path] | None = None,
 ) -> dict[str, Any]:
     """Compare the finished transfer runs under ``a`` with those under ``b`` (paths as
@@ -272,7 +279,10 @@ def compare_runs(
                 },
             )
             if score == "final":
-                entry["final"] = {"mean": d[key]["mean"], "mean_ci": d[key]["mean_ci"]}
+                own = bootstrap_mean(
+                    g["scores"]["final"], g["seeds"], g["sources"], reps=REPS, seed=seed
+                )
+                entry["final"] = {"mean": own["mean"], "mean_ci": own["mean_ci"]}
             else:
                 entry[f"{score}_mean"] = d[key]["mean"]
     for g in (ga, gb):
