@@ -397,6 +397,28 @@ def test_a_run_killed_before_its_first_checkpoint_starts_over_cleanly(tmp_path: 
     assert evals == [k * n * 32 for k in range(5)]
 
 
+def test_a_run_killed_after_its_last_checkpoint_logs_its_final_evaluation_once(
+    tmp_path: Path,
+) -> None:
+    # killed after the checkpoint of its last update and its final evaluation, before the
+    # stage wrote its result (seen when a Ray node died): the retry resumes from that
+    # checkpoint, evaluates again and must not leave that evaluation logged twice
+    n = 8
+    cfg = toy_config(total_steps=2 * n * 32, checkpoint_every=10**9, eval_every=n * 32)
+
+    def score(policy: Policy, steps: int) -> dict[str, float]:
+        return {"score": float(steps)}
+
+    run = Run(tmp_path / "r", {"c": 1})
+    options: dict[str, Any] = {"eval_fn": score, "checkpoint_every_s": 0, "progress": False}
+    first = train_ppo(PointTarget1D(n), cfg, run, **options)
+    again = train_ppo(PointTarget1D(n), cfg, Run(tmp_path / "r", {"c": 1}), **options)
+    assert np.array_equal(params_of(first), params_of(again))
+    evals = [r["step"] for r in run.read_metrics() if "eval/score" in r]
+    assert evals == [0, n * 32, 2 * n * 32]
+    assert [r["step"] for r in run.read_metrics() if "loss/loss" in r] == [n * 32, 2 * n * 32]
+
+
 def test_checkpoints_by_wall_time_resume_exactly_and_leave_the_step_schedule(
     tmp_path: Path,
 ) -> None:

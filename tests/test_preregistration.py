@@ -216,3 +216,28 @@ def test_the_record_keeps_the_first_start_and_marks_the_summary(
     write_record(out, gate(out, [], exploratory=True))
     again = json.loads((out / "preregistration.json").read_text())["evaluation_allowed_at"]
     assert again == first
+
+
+def test_pved_protocol_refuses_before_any_work_and_marks_exploratory_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from helpers import run_cli
+    from pved import __version__
+    from pved.experiments.protocol import summarize
+    from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan
+    from pved.runs import atomic_write_json
+
+    out = tmp_path / "out"
+    argv = ["protocol", "--pair", "reacher", "--budget", "paper", "--out", out, "--methods"]
+    code, _, err = run_cli(capsys, *argv, "pved-align", "ppo")
+    assert code != 0 and "pved-align is beyond the paper" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+    # the summary of an exploratory protocol labels the method's results
+    plan = ProtocolPlan(["reacher"], ALIGN, "paper", out)
+    out.mkdir()
+    atomic_write_json(out / PLAN_FILE, {**plan.describe(), "pved_version": __version__})
+    write_record(out, check_gate(["reacher"], ALIGN, "paper", out, None, (), exploratory=True))
+    summary = summarize(out)
+    methods = summary["pairs"]["reacher"]["methods"]
+    assert methods["pved-align"][EXPLORATORY] is True and EXPLORATORY not in methods["ppo"]
+    assert "| pved-align (exploratory) | 0/0 |" in (out / "summary.md").read_text()

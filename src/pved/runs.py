@@ -450,15 +450,24 @@ class Run:
             return []
         return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
-    def drop_metrics_after(self, step: int) -> None:
+    def drop_metrics_after(self, step: int, final_eval: bool = False) -> None:
         """On resume, forget the ``metrics.jsonl`` records past ``step``, the step of the
         checkpoint resumed from (-1 when there is none and the run starts over): an
         interrupted run logged them after its last checkpoint, the resumed run logs those
         steps again, and learning curves must not count them twice. (TensorBoard events
-        are append-only and keep both.)"""
+        are append-only and keep both.) ``final_eval``: that checkpoint is the run's last,
+        taken before its final evaluation, so the evaluation records at ``step`` were
+        logged after it too (a run killed before writing its result) and go as well."""
         path = self.path / "metrics.jsonl"
         records = self.read_metrics()
-        kept = [r for r in records if int(r.get("step", 0)) <= step]
+
+        def after(r: Mapping[str, Any]) -> bool:
+            at = int(r.get("step", 0))
+            return at > step or (
+                final_eval and at == step and any(k.startswith("eval/") for k in r)
+            )
+
+        kept = [r for r in records if not after(r)]
         if len(kept) != len(records):
             atomic_write_bytes(path, "".join(json.dumps(r) + "\n" for r in kept).encode())
 

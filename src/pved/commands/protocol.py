@@ -26,6 +26,8 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
         backend=args.backend,
         stages_from=args.stages_from,
         selection_from=args.selection_from,
+        preregistration=args.preregistration or (),
+        exploratory=args.exploratory,
     )
     failed = len(summary["failed"]) + len(summary["blocked"])
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
@@ -78,6 +80,21 @@ def add_protocol(v: Verbs) -> None:
         metavar="DIR",
         help="a protocol directory (e.g. the pair's quick screen) whose beta and model "
         "selections, made on its tuning seeds, are evaluated here without tuning again",
+    )
+    p.add_argument(
+        "--preregistration",
+        type=Path,
+        nargs="+",
+        metavar="FILE",
+        help="at the paper budget, each method beyond the paper needs one: a TOML file "
+        "committed to git before its evaluation runs start, fixing its beta and init per "
+        "pair (docs/decisions/protocol.md); its selection is the one used",
+    )
+    p.add_argument(
+        "--exploratory",
+        action="store_true",
+        help="evaluate a method beyond the paper at the paper budget without a valid "
+        "pre-registration; its results are marked exploratory",
     )
     p.set_defaults(func=_cmd_protocol)
 

@@ -503,7 +503,8 @@ def import_batch(
 
 
 def _expected_hash(kwargs: Mapping[str, Any]) -> str:
-    args = {k: v for k, v in kwargs.items() if k != "progress"}
+    # how often a run checkpoints is not part of what it computes, nor of its config
+    args = {k: v for k, v in kwargs.items() if k not in ("progress", "checkpoint_every_s")}
     return config_hash(transfer_spec(**args).config)
 
 

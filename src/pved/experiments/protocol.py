@@ -23,6 +23,7 @@ import numpy as np
 from pved import __version__
 from pved.checks import check_int, check_writable
 from pved.errors import PvedError
+from pved.experiments.preregistration import check_gate, mark_summary, write_record
 from pved.experiments.protocol_plan import (
     PLAN_FILE,
     ProtocolPlan,
@@ -115,8 +116,15 @@ def run_protocol(
     backend: str = "auto",
     stages_from: Path | str | Sequence[Path | str] | None = None,
     selection_from: Path | str | None = None,
+    preregistration: Sequence[Path | str] = (),
+    exploratory: bool = False,
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
+
+    A method beyond the paper at the paper's budget starts only with a valid
+    ``preregistration`` (files, one a method; their selections are the plan's) or with
+    ``exploratory`` (its results are then marked so), checked before any work
+    (:func:`pved.experiments.preregistration.check_gate`).
 
     A directory that already holds a protocol must hold the same one (pairs, methods,
     budget): its finished runs are reused and unfinished ones resumed. ``backend``: see
@@ -137,6 +145,8 @@ def run_protocol(
     fixed = (
         None if selection_from is None else fixed_selections(selection_from, pairs, methods, budget)
     )
+    gate = check_gate(pairs, methods, budget, out, fixed, preregistration, exploratory, sources)
+    fixed = gate.fixed or None  # a pre-registration's selection is the plan's
     plan = ProtocolPlan(pairs, methods, budget, Path(out), fixed)
     resolve_backend(backend, address)  # before anything is written
     if workers is not None:
@@ -184,6 +194,7 @@ def run_protocol(
     for source in sources:
         copied = copy_stage_runs(source, plan.out, plan.pairs)
         print(f"copied {copied} finished runs from {source}", file=sys.stderr)
+    write_record(plan.out, gate)  # before an evaluation run can start
     report = run_jobs(
         plan,
         workers=workers,
@@ -348,6 +359,7 @@ def _summarize(
         # paper's speed measure, and to the oracle's, where PPO learns nothing to reach
         for method, reach in steps_to_baseline_finals(curves, (NO_TRANSFER, ORACLE)).items():
             methods[method].update(reach)
+        mark_summary(out, methods)  # pre-registered or exploratory (preregistration.py)
         summary["pairs"][pair] = {"metric": metric, "methods": methods}
         every_run.extend(fp for m in methods.values() for fp in _each_run(m))
         if panel is not None:
@@ -446,7 +458,8 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
                 init = f"{init} (collapsed)"
             shaping, env_reward = _scale_cells(m, method)
             lines.append(
-                f"| {method} | {m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
+                f"| {method}{' (exploratory)' if m.get('exploratory') else ''} | "
+                f"{m['runs_finished']}/{m['runs_planned']} | {mean} | {iqm} | "
                 f"{reach[0]} | {reach[1]} | {beta} | {init} | {shaping} | {env_reward} |"
             )
         lines.append("")

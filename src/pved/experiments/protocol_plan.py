@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from pved.config import ProtocolBudget, get_budget
+from pved.config import PRETRAINED, TRAINED, ProtocolBudget, get_budget
 from pved.errors import PvedError
 from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.experiments.runner import Job, read_job_result
@@ -55,6 +55,7 @@ from pved.experiments.stages import build_bank, collect_pairs, train_model, trai
 from pved.experiments.transfer_spec import eq10_config
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.record_paths import record_path
+from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds
 from pved.runs import run_path
 from pved.spec import get_preset, preset_for_agent
 from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
@@ -62,16 +63,26 @@ from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
 PLAN_FILE = "protocol.json"
 
 
-def indexed_policy(agent: str, task: str, index: int, runs: Path) -> tuple[Path, int, bool]:
-    """The protocol's ``index``-th policy of ``agent`` on ``task``: the shipped ones in seed
-    order (a seed that missed its bar is not shipped), then runs under ``runs`` that train
-    the seeds not shipped, 0, 1, ... Returns (policy file, seed, whether it is shipped)."""
-    shipped = shipped_seeds(agent, task)
+def indexed_policy(
+    agent: str, task: str, index: int, runs: Path, pair: str | None = None
+) -> tuple[Path, int, bool]:
+    """The protocol's ``index``-th policy of ``agent`` on ``task`` in ``pair`` (default:
+    the first pair the agent is in): where the pair's spec says ``pretrained``, the
+    shipped ones in seed order (a seed that missed its bar is not shipped); where it
+    names a file (a user's own policy, an SB3 ``.zip``), that file as policy 0; then runs
+    under ``runs`` that train the seeds not taken, 0, 1, ... Returns (policy file, seed,
+    whether it is there already, shipped or given)."""
+    preset = preset_for_agent(agent) if pair is None else get_preset(pair)
+    choice = preset.agent_env(agent, task).policy
+    shipped = shipped_seeds(agent, task) if choice == PRETRAINED else []
     if index < len(shipped):
         return pretrained_policy_path(agent, task, shipped[index]), shipped[index], True
+    if choice not in (PRETRAINED, TRAINED):
+        if index == 0:
+            return Path(choice), 0, True
+        shipped = [0]  # the file stands for seed 0; a budget's further policies are trained
     unshipped = (s for s in itertools.count() if s not in shipped)
     seed = next(itertools.islice(unshipped, index - len(shipped), None))
-    preset = preset_for_agent(agent)
     run_dir = run_path(runs, preset.name, "policy", f"{agent}-{task}", seed)
     return run_dir / "policy.pt", seed, False
 
@@ -183,6 +194,8 @@ class ProtocolPlan:
         budget: str,
         out: Path,
         fixed: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
+        *,
+        checkpoint_seconds: float | None = CHECKPOINT_SECONDS,
     ) -> None:
         if not pairs:
             raise PvedError("protocol needs at least one pair")
@@ -203,6 +216,11 @@ class ProtocolPlan:
         self.selection: dict[str, dict[str, Any]] = {}
         # selections made elsewhere (fixed_selections): pair -> method -> beta, init, ...
         self.fixed = relative_selections(fixed or {})
+        # each RL run's checkpoints by wall time (``--checkpoint-seconds``): how much a
+        # kill or a lost node costs it; not in any run's config, nor in the plan file
+        self.checkpoint_seconds = check_checkpoint_seconds(
+            checkpoint_seconds, "--checkpoint-seconds"
+        )
 
     # -- plan file -------------------------------------------------------------------
 
@@ -262,13 +280,13 @@ class ProtocolPlan:
         size = self.budget.beta_grid_size
         return grid if size is None else grid[:size]
 
-    def _policy(self, agent: str, task: str, index: int) -> tuple[Path, Job | None]:
-        """The ``index``-th policy of ``agent`` on ``task`` (:func:`indexed_policy`), with
-        the job that trains it where it is not shipped."""
-        path, seed, shipped = indexed_policy(agent, task, index, self.runs)
+    def _policy(self, pair: str, agent: str, task: str, index: int) -> tuple[Path, Job | None]:
+        """The ``index``-th policy of ``agent`` on ``task`` in ``pair``
+        (:func:`indexed_policy`), with the job that trains it where it is not there."""
+        path, seed, shipped = indexed_policy(agent, task, index, self.runs, pair)
         if shipped:
             return path, None
-        preset = preset_for_agent(agent)
+        preset = get_preset(pair)
         run_dir = path.parent
         steps = self.budget.policy_steps or preset.policy_config(agent, task).total_steps
         job = Job(
@@ -281,6 +299,9 @@ class ProtocolPlan:
                 "steps": self.budget.policy_steps,
                 "runs_root": self.runs,
                 "progress": False,
+                # by name: a worker elsewhere finds a spec pair's agent only through it
+                "pair": pair,
+                "checkpoint_every_s": self.checkpoint_seconds,
             },
             steps=steps,
             run_dir=run_dir,
@@ -311,6 +332,7 @@ class ProtocolPlan:
             "final_eval_episodes": b.final_eval_episodes,
             "runs_root": self.runs,
             "progress": False,
+            "checkpoint_every_s": self.checkpoint_seconds,
         }
         if method in REFERENCE_METHODS:
             name = method
@@ -410,8 +432,8 @@ class ProtocolPlan:
             return jobs
 
         # the earlier stages: training-task policies, pairs, banks of each source policy
-        src_train, src_job = self._policy(preset.source_agent, preset.training_task, 0)
-        tgt_train, tgt_job = self._policy(preset.target_agent, preset.training_task, 0)
+        src_train, src_job = self._policy(pair, preset.source_agent, preset.training_task, 0)
+        tgt_train, tgt_job = self._policy(pair, preset.target_agent, preset.training_task, 0)
         policy_deps = tuple(k for k in (add(src_job), add(tgt_job)) if k)
         pairs_key = add(
             Job(
@@ -433,7 +455,7 @@ class ProtocolPlan:
         assert pairs_key is not None
         bank_keys: list[str] = []
         for k in range(b.source_policies):
-            path, policy_job = self._policy(preset.source_agent, preset.target_task, k)
+            path, policy_job = self._policy(pair, preset.source_agent, preset.target_task, k)
             dep = add(policy_job)
             bank_key = add(
                 Job(
@@ -607,7 +629,7 @@ class ProtocolPlan:
                     (preset.source_agent, preset.target_task, k) for k in range(b.source_policies)
                 ]
                 for agent, task, index in needed:
-                    _, job = self._policy(agent, task, index)
+                    _, job = self._policy(pair, agent, task, index)
                     total += job.steps if job else 0
         return total
 

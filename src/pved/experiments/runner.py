@@ -228,7 +228,7 @@ class _RayExecutor:
             init: dict[str, Any] = {
                 "include_dashboard": False,
                 "log_to_driver": False,
-                "runtime_env": {"env_vars": WORKER_ENV},
+                "runtime_env": {"env_vars": {**WORKER_ENV, **_spec_files_env()}},
             }
             if address:
                 check_reachable(address)
@@ -260,6 +260,17 @@ class _RayExecutor:
     def shutdown(self) -> None:
         if self.started_here:
             self.ray.shutdown()
+
+
+def _spec_files_env() -> dict[str, str]:
+    """The pair spec files this process read (:data:`pved.spec.SPEC_FILES_ENV`), for the
+    workers: a worker on another node of a cluster was not started by this process and
+    inherits nothing from it, and finds a spec pair's name only through this variable
+    (the files must be where every node sees them, as the output directory is)."""
+    from pved.spec import SPEC_FILES_ENV
+
+    files = os.environ.get(SPEC_FILES_ENV)
+    return {SPEC_FILES_ENV: files} if files else {}
 
 
 def _init_process_worker() -> None:

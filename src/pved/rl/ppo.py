@@ -752,7 +752,11 @@ def train_ppo(
     else:
         trainer.reset_env(config.seed)
     if run is not None:  # a run killed before its first checkpoint starts over
-        run.drop_metrics_after(trainer.global_step if state is not None else -1)
+        run.drop_metrics_after(
+            trainer.global_step if state is not None else -1,
+            # resumed from its last checkpoint: the final evaluation is made again below
+            final_eval=state is not None and trainer.update >= config.num_updates,
+        )
 
     name = env_id or str(getattr(env, "env_id", type(env).__name__))
     policy = trainer.policy
