@@ -87,15 +87,24 @@ def _finite(values: np.ndarray, what: str) -> np.ndarray:
 
 
 def bootstrap_summary(
-    scores: np.ndarray, reps: int = 2000, seed: int = 0
+    scores: np.ndarray,
+    reps: int | None = None,
+    seed: int = SEED,
+    *,
+    seeds: Sequence[Hashable] | None = None,
+    sources: Sequence[Hashable] | None = None,
 ) -> dict[str, float | list[float] | int]:
     """Mean and interquartile mean (IQM, the 25%-trimmed mean) of per-run final scores, each
-    with its 95% percentile bootstrap CI over runs (rliable, ``reps`` resamples, reproducible
-    for a given ``seed``; numpy's global RNG is left as it was).
+    with its 95% percentile bootstrap CI: the mean's the project's one method, the
+    two-level bootstrap over the runs' ``sources`` and ``seeds`` (:func:`bootstrap_mean`;
+    neither given: over runs), the IQM's one-level, over runs (rliable; a trimmed mean has
+    no two-level form here). ``reps``: both intervals' resamples (default :data:`REPS`
+    for the mean, :data:`ONE_LEVEL_REPS` for the IQM); reproducible for a given ``seed``;
+    numpy's global RNG is left as it was.
 
     Returns ``{"runs": n, "mean": m, "iqm": q, "mean_ci": [lo, hi], "iqm_ci": [lo, hi]}``.
     With one run both intervals are degenerate, ``[x, x]``. Raises PvedError for an empty,
-    non-1-D or non-finite ``scores``."""
+    non-1-D or non-finite ``scores``, or labels that do not match the runs."""
     values = _finite(scores, "bootstrap_summary")
     if values.ndim != 1:
         raise PvedError(f"bootstrap_summary wants a 1-D array of run scores, got {values.shape}")
@@ -106,18 +115,20 @@ def bootstrap_summary(
         return {"runs": 1, "mean": x, "iqm": x, "mean_ci": [x, x], "iqm_ci": [x, x]}
     from rliable import metrics
 
-    def mean_and_iqm(s: np.ndarray) -> np.ndarray:
-        # Both statistics from the same resamples: one bootstrap pass instead of two.
-        return np.array([metrics.aggregate_mean(s), metrics.aggregate_iqm(s)])
-
+    mean = bootstrap_mean(values, seeds, sources, reps=reps or REPS, seed=seed)
     # rliable wants (runs, tasks); the final scores are one task.
-    point, interval = _bootstrap(values[:, None], mean_and_iqm, reps, seed)
+    point, interval = _bootstrap(
+        values[:, None],
+        lambda s: np.array([metrics.aggregate_iqm(s)]),
+        reps or ONE_LEVEL_REPS,
+        seed,
+    )
     return {
         "runs": n,
-        "mean": float(point[0]),
-        "iqm": float(point[1]),
-        "mean_ci": [float(interval[0, 0]), float(interval[1, 0])],
-        "iqm_ci": [float(interval[0, 1]), float(interval[1, 1])],
+        "mean": mean["mean"],
+        "iqm": float(point[0]),
+        "mean_ci": mean["mean_ci"],
+        "iqm_ci": [float(interval[0, 0]), float(interval[1, 0])],
     }
 
 

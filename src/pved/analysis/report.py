@@ -10,7 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import Curve, bootstrap_summary, load_curve, plot_curves
+from pved.analysis.curves import (
+    ONE_LEVEL_REPS,
+    REPS,
+    SEED,
+    Curve,
+    bootstrap_summary,
+    load_curve,
+    plot_curves,
+)
 from pved.checks import check_seed, check_writable
 from pved.errors import PvedError
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
@@ -95,7 +103,8 @@ def transfer_report(
         f"Final {metric} is measured on fresh episodes after training; 'curve mean' is the "
         "mean of the evaluation points along training (a sample-efficiency summary). "
         "[lo, hi] is the 95% percentile bootstrap interval of the mean over seeds "
-        "(rliable, 2000 resamples; [x, x] for one seed).",
+        f"(the project's bootstrap, here of seeds only: {REPS:,} resamples, seed {SEED}; "
+        "[x, x] for one seed).",
         "",
         f"| method | seeds | env steps | final {metric}: mean [95% CI] | per seed "
         "| curve mean [95% CI] | final return: mean [95% CI] |",
@@ -116,7 +125,8 @@ def transfer_report(
             "pair": pair,
             "metric": metric,
             # *_ci95 used to be t-interval half-widths; say what they are now.
-            "ci95": "[lo, hi], 95% percentile bootstrap over seeds (rliable, 2000 reps, seed 0)",
+            "ci95": f"[lo, hi], 95% percentile bootstrap over seeds ({REPS} reps, seed {SEED}); "
+            f"final_iqm_ci95: one-level (rliable, {ONE_LEVEL_REPS} reps)",
             "rows": rows,
             **(extra or {}),
         },
