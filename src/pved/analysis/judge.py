@@ -262,7 +262,7 @@ def load_pairs(dirs: Sequence[Path]) -> dict[str, PairSummary]:
     return pairs
 
 
-def _run_curves(p: PairSummary, method: str) -> list[tuple[np.ndarray, np.ndarray]] | str:
+def method_curves(p: PairSummary, method: str) -> list[tuple[np.ndarray, np.ndarray]] | str:
     """Every run's curve of ``method`` on ``p``
     (:func:`pved.analysis.run_curves.run_curve`), or the first run's reason for having
     none."""
@@ -283,7 +283,7 @@ def ppo_final_point(pairs: dict[str, PairSummary], pair: str) -> float | str:
     p = pairs.get(pair)
     if p is None or not (p.methods.get("ppo") or {}).get("runs"):
         return f"no runs of ppo on {pair}: no final to reach"
-    curves = _run_curves(p, "ppo")
+    curves = method_curves(p, "ppo")
     if isinstance(curves, str):
         return curves
     first = float(np.mean([v[0] for _, v in curves]))
@@ -291,15 +291,6 @@ def ppo_final_point(pairs: dict[str, PairSummary], pair: str) -> float | str:
     if not last > first:
         return f"ppo did not improve on {pair} ({num(first)} -> {num(last)}): no final to reach"
     return last
-
-
-def reached(pairs: dict[str, PairSummary], pair: str, method: str) -> int | None:
-    """How many of ``method``'s runs on ``pair`` reach PPO's final (None: not known)."""
-    p, threshold = pairs.get(pair), ppo_final_point(pairs, pair)
-    curves = _run_curves(p, method) if p is not None and method in p.methods else "none"
-    if isinstance(threshold, str) or isinstance(curves, str):
-        return None
-    return sum(bool(np.any(v >= threshold)) for _, v in curves)
 
 
 def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -> np.ndarray | str:
@@ -318,7 +309,7 @@ def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -
     elif score == "final":
         out = np.asarray([float(r[p.metric]) for r in runs])
     else:
-        curves = _run_curves(p, method)
+        curves = method_curves(p, method)
         threshold = ppo_final_point(pairs, pair) if score == "reach" else 0.0
         if isinstance(curves, str) or isinstance(threshold, str):
             out = curves if isinstance(curves, str) else str(threshold)

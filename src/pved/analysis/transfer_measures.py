@@ -36,6 +36,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from pved.analysis.claims import holm_adjusted
 from pved.analysis.judge import (
     AA_REFERENCE,
@@ -44,9 +46,9 @@ from pved.analysis.judge import (
     SEED,
     Judge,
     PairSummary,
+    method_curves,
     num,
     ppo_final_point,
-    reached,
 )
 
 MEASURES = ("auc", "jumpstart", "reach", "final")
@@ -106,6 +108,15 @@ def beside_aa(value: float, aa: dict[str, Any] | str) -> dict[str, Any]:
     set)}``: what a comparison of difference ``value`` carries beside its verdict."""
     inside = abs(value) <= aa["noise"] if isinstance(aa, dict) else None
     return {"aa": aa, "inside_aa": inside}
+
+
+def reached(pairs: dict[str, PairSummary], pair: str, method: str) -> int | None:
+    """How many of ``method``'s runs on ``pair`` reach PPO's final (None: not known)."""
+    p, threshold = pairs.get(pair), ppo_final_point(pairs, pair)
+    curves = method_curves(p, method) if p is not None and method in p.methods else "none"
+    if isinstance(threshold, str) or isinstance(curves, str):
+        return None
+    return sum(bool(np.any(v >= threshold)) for _, v in curves)
 
 
 def is_exploratory(pair: PairSummary, method: str) -> bool:
