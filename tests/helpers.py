@@ -164,7 +164,7 @@ bank_match = []
 
 [protocol]
 beta_grid = [0.1, 0.01]
-steps = {{ smoke = {smoke_steps} }}
+steps = {{ smoke = {smoke_steps}, quick = 300000 }}
 """
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import run_cli, stock_reacher_spec
 from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.config import get_budget
 from pved.errors import PvedError
@@ -29,9 +30,10 @@ from pved.experiments.protocol_plan import (
     transfer_run_name,
 )
 from pved.experiments.runner import Job, resolve_backend, run_jobs
+from pved.experiments.stages import train_policy, transfer
 from pved.experiments.transfer_spec import transfer_spec
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
-from pved.spec import get_preset
+from pved.spec import get_preset, load_pair
 
 PVED = [sys.executable, "-m", "pved.cli"]
 
@@ -266,6 +268,53 @@ def test_plan_trains_the_policies_the_package_does_not_ship(tmp_path: Path) -> N
     assert bank2.deps == ("policy/Reacher3-Push/seed2",)
 
 
+def test_plan_takes_a_spec_pairs_own_policy_files_and_trains_the_rest(tmp_path: Path) -> None:
+    spec = stock_reacher_spec(tmp_path / "spec")
+    pair = load_pair(spec).name
+    plan = ProtocolPlan([pair], ["pved"], "quick", tmp_path / "p")
+    jobs = {j.key: j for j in plan.expand({})}
+    # policy 0 of the source on either task is the SB3 file the spec names, not a run
+    assert jobs[f"{pair}/pairs"].kwargs["source_policy"] == spec.parent / "stock_reach.zip"
+    assert jobs[f"{pair}/bank/src0"].kwargs["source_policy"] == spec.parent / "stock_push.zip"
+    assert jobs[f"{pair}/bank/src0"].deps == ()
+    # the budget's further source policies are trained, under the pair, by its name
+    trained = sorted(k for k in jobs if k.startswith("policy/"))
+    assert trained == ["policy/StockReacher2-Push/seed1", "policy/StockReacher2-Push/seed2"]
+    assert all(jobs[k].kwargs["pair"] == pair for k in trained)
+    assert jobs[trained[0]].run_dir == plan.runs / pair / "policy" / "StockReacher2-Push" / "seed1"
+
+
+def test_protocol_checkpoint_seconds_reach_every_rl_run_and_no_config(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    planned: list[ProtocolPlan] = []
+
+    def planned_only(plan: ProtocolPlan, **options: Any) -> None:
+        planned.append(plan)
+        raise PvedError("planned")
+
+    monkeypatch.setattr("pved.experiments.protocol.run_jobs", planned_only)
+    argv = ["protocol", "--pair", "reacher", "--budget", "quick", "--out", tmp_path / "p"]
+    code, _, err = run_cli(capsys, *argv, "--checkpoint-seconds", "5", "--backend", "processes")
+    assert code == 2 and "planned" in err
+    jobs = planned[0].expand({})
+    runs = [j for j in jobs if j.fn in (transfer, train_policy)]
+    assert {j.fn for j in runs} == {transfer, train_policy}
+    assert all(j.run_options == {"checkpoint_every_s": 5.0} for j in runs)
+    # by default a minute, as transfer's; the runs' arguments, and so their configs, alike
+    default = ProtocolPlan(["reacher"], ["pved", "ppo"], "quick", tmp_path / "p").expand({})
+    assert {j.run_options["checkpoint_every_s"] for j in default if j.run_options} == {60.0}
+    assert [j.kwargs for j in default] == [j.kwargs for j in jobs]
+    # the runner hands a job's options to its function beside its arguments
+    report = run_jobs(
+        _FixedPlan([Job("a", _arguments, {"x": 1}, run_options={"y": 2})]),
+        workers=1,
+        live=False,
+        backend="processes",
+    )
+    assert report.results == {"a": {"x": 1, "y": 2}}
+
+
 def test_plan_uses_the_shipped_seeds_whichever_they_are(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -302,6 +351,10 @@ def test_plan_uses_the_shipped_seeds_whichever_they_are(
 
 def _ok(value: int) -> int:
     return value
+
+
+def _arguments(**kwargs: Any) -> dict[str, Any]:
+    return kwargs
 
 
 def _always_fails() -> None:

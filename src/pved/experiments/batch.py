@@ -503,8 +503,7 @@ def import_batch(
 
 
 def _expected_hash(kwargs: Mapping[str, Any]) -> str:
-    # how often a run checkpoints is not part of what it computes, nor of its config
-    args = {k: v for k, v in kwargs.items() if k not in ("progress", "checkpoint_every_s")}
+    args = {k: v for k, v in kwargs.items() if k != "progress"}
     return config_hash(transfer_spec(**args).config)
 
 

@@ -218,9 +218,11 @@ class ProtocolPlan:
         self.fixed = relative_selections(fixed or {})
         # each RL run's checkpoints by wall time (``--checkpoint-seconds``): how much a
         # kill or a lost node costs it; not in any run's config, nor in the plan file
-        self.checkpoint_seconds = check_checkpoint_seconds(
-            checkpoint_seconds, "--checkpoint-seconds"
-        )
+        self._run_options = {
+            "checkpoint_every_s": check_checkpoint_seconds(
+                checkpoint_seconds, "--checkpoint-seconds"
+            )
+        }
 
     # -- plan file -------------------------------------------------------------------
 
@@ -301,10 +303,10 @@ class ProtocolPlan:
                 "progress": False,
                 # by name: a worker elsewhere finds a spec pair's agent only through it
                 "pair": pair,
-                "checkpoint_every_s": self.checkpoint_seconds,
             },
             steps=steps,
             run_dir=run_dir,
+            run_options=self._run_options,
         )
         return run_dir / "policy.pt", job
 
@@ -332,7 +334,6 @@ class ProtocolPlan:
             "final_eval_episodes": b.final_eval_episodes,
             "runs_root": self.runs,
             "progress": False,
-            "checkpoint_every_s": self.checkpoint_seconds,
         }
         if method in REFERENCE_METHODS:
             name = method
@@ -360,6 +361,7 @@ class ProtocolPlan:
             run_dir=run_path(self.runs, pair, "transfer", name, seed),
             tags={"source_policy": source, "init": init, "beta": beta},
             required_config=required,
+            run_options=self._run_options,
         )
 
     def _bank_path(self, pair: str, source: int) -> Path:

@@ -99,6 +99,9 @@ class Job:
             a ``result.json`` there to count as this job's: a run made by code that
             computed otherwise (and, restored, cannot be checked by its config hash,
             whose inputs are gone) is then made again rather than taken as it is.
+        run_options: arguments passed to ``fn`` besides ``kwargs`` that say how the job
+            runs, not what it makes (how often it checkpoints): kept apart so that
+            ``kwargs`` stays what identifies the run (a batch exports ``kwargs`` alone).
     """
 
     key: str
@@ -111,6 +114,7 @@ class Job:
     priority: int = 0
     end_product: bool = True
     required_config: Mapping[str, Any] = field(default_factory=dict)
+    run_options: Mapping[str, Any] = field(default_factory=dict)
 
 
 class Planner(Protocol):
@@ -573,7 +577,7 @@ def _run(
                 found_results[job.key] = result_file.stat().st_mtime_ns
             if job.steps:
                 earlier[job.key] = min(job.steps, last_logged_step(job.run_dir))
-        in_flight[executor.submit(job.fn, dict(job.kwargs))] = job
+        in_flight[executor.submit(job.fn, {**job.kwargs, **job.run_options})] = job
 
     def blocked_keys() -> list[str]:
         bad = set(failed)
