@@ -149,7 +149,8 @@ CLI: list[tuple[tuple[str, ...], str, Kind]] = [
     for o, k in (("--max-steps", COUNT), ("--seed", SEED))
 ] + [
     (("protocol", "--pair", "reacher", "--out", "{tmp}/p", "--backend", "processes"), o, k)
-    for o, k in (("--workers", COUNT), ("--retries", COUNT0))
+    for o, k in (("--workers", COUNT), ("--retries", COUNT0),
+                 ("--checkpoint-seconds", SECONDS))
 ] + [
     (("batch", "export", "--protocol", "{tmp}/p", "--batch", "{tmp}/b"), o, k)
     for o, k in (("--limit", COUNT), ("--skip", COUNT0), ("--claim-minutes", NONNEG),
