@@ -67,7 +67,12 @@ def make(env_id: str, **kwargs: Any) -> gym.Env[Any, Any]:
 
 
 def make_batched(
-    env_id: str, num_envs: int, *, robot_state: Sequence[int] | None = None, **kwargs: Any
+    env_id: str,
+    num_envs: int,
+    *,
+    robot_state: Sequence[int] | None = None,
+    step_limit: int | None = None,
+    **kwargs: Any,
 ) -> BatchedEnv:
     """The batched form of ``env_id`` with ``num_envs`` copies (autoreset on).
 
@@ -76,11 +81,17 @@ def make_batched(
     has no batched form of its own: it is batched by :class:`GymnasiumBatch` (its copies
     stepped one after another), with ``robot_state`` as its robot-state indices
     (default: the whole observation). A pved env reports its own; a ``robot_state``
-    given for one must be that.
+    given for one must be that. ``step_limit`` truncates episodes at that many control
+    steps instead of the env's own limit (a source bank's rollouts reach as far as the
+    target's episode: ``pved.transfer.source_bank.bank_step_limit``).
     """
+    if step_limit is not None and (isinstance(step_limit, bool) or int(step_limit) < 1):
+        raise PvedError(f"step_limit must be a whole number of steps >= 1, got {step_limit!r}")
     if not env_id.startswith(f"{NAMESPACE}/"):
         from pved.envs.gym_adapter import GymnasiumBatch
 
+        if step_limit is not None:  # Gymnasium's own TimeLimit, set by make
+            kwargs = {**kwargs, "max_episode_steps": int(step_limit)}
         state = None if robot_state is None else np.asarray(robot_state, dtype=np.int64)
         return GymnasiumBatch(
             env_id=env_id, num_envs=num_envs, make_kwargs=kwargs, robot_state_indices=state
@@ -97,4 +108,6 @@ def make_batched(
             f"{env_id} reports its robot state at {[int(i) for i in env.robot_state_indices]}, "
             f"not {[int(i) for i in robot_state]}; give no robot_state for a pved env"
         )
+    if step_limit is not None:  # every pved env truncates on this attribute at each step
+        env.max_episode_steps = int(step_limit)
     return env

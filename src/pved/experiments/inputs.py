@@ -14,12 +14,13 @@ from typing import Any
 import numpy as np
 
 from pved.config import PRETRAINED, TRAINED, PairPreset
+from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.pretrained import pretrained_policy_path
 from pved.runs import run_file, run_path
 from pved.spec import builtin_names, get_preset, spec_identity
-from pved.transfer.source_bank import SourceBank
+from pved.transfer.source_bank import SourceBank, bank_step_limit, bank_time_scale
 
 DEFAULT_RUNS = Path("runs")
 
@@ -171,3 +172,22 @@ def check_dataset_for(preset: PairPreset, header: dict[str, Any], path: Path | s
                 f"dataset {path} holds the {side}'s robot state at {list(have)}, the spec "
                 f"names {list(want)}"
             )
+
+
+def bank_rollout_steps(preset: PairPreset, name: str, env_kwargs: dict[str, Any]) -> int | None:
+    """The step limit a bank's rollouts on the source env ``name`` need to reach as far as
+    the target's target-task episode, on the pairs' time base
+    (:func:`~pved.transfer.source_bank.bank_step_limit`); None where the source env's own
+    limit already does (docs/decisions/transfer.md, "A target step past the source's end")."""
+    tgt_name, tgt_kwargs = env_of(preset, preset.target_agent, preset.target_task)
+    source, target = make_batched(name, 1, **env_kwargs), make_batched(tgt_name, 1, **tgt_kwargs)
+    try:
+        own = int(source.max_episode_steps)
+        scale = bank_time_scale(
+            preset.pairing.align, getattr(source, "dt", None), getattr(target, "dt", None)
+        )
+        need = bank_step_limit(int(target.max_episode_steps), scale)
+    finally:
+        source.close()
+        target.close()
+    return need if need > own else None

@@ -31,6 +31,7 @@ from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
 from pved.experiments.inputs import (
     DEFAULT_RUNS,
+    bank_rollout_steps,
     check_bank_for,
     check_dataset_for,
     check_model_for,
@@ -542,6 +543,11 @@ def build_bank(
         "match_keys": preset.bank_match_keys,
         **spec_identity(preset),
     }
+    # rollouts as long as the target's episode on the pairs' time base; only where that
+    # is past the source env's own limit (humanoid-ant), so other banks keep their configs
+    step_limit = bank_rollout_steps(preset, name, env_kwargs) if source_dataset is None else None
+    if step_limit is not None:
+        config["step_limit"] = step_limit
     if recorded is None:
         path = policy_path(
             preset, preset.source_agent, preset.target_task, source_policy, runs_root
@@ -558,7 +564,7 @@ def build_bank(
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
-    env = _eval_env(name, episodes, **env_kwargs)
+    env = _eval_env(name, episodes, step_limit=step_limit, **env_kwargs)
     # a spec's digest only for a pair of its own: a built-in pair's bank is the bytes it
     # always was, so the transfer runs that hash it keep their configs
     identity = spec_identity(preset)

@@ -5,14 +5,18 @@ compare with. The paper does not pair trajectories on the target task, so we rol
 the source's target-task policy on many task instances once, and at transfer time match
 each target episode to the bank episode whose task parameters are nearest (e.g. the
 button's start position) and each target step t to the bank episode's step taken at the
-same moment as the pairs were aligned (:func:`bank_time_scale`; the last step once the
-source episode has ended).
+same moment as the pairs were aligned (:func:`bank_time_scale`). A bank's rollouts run as
+long as the target's episode on that time base (:func:`bank_step_limit`); a target step
+past the end of a source episode that ended earlier (the source fell) is compared with
+nothing (:func:`source_covered`; docs/decisions/transfer.md, "A target step past the
+source's end").
 """
 
 from __future__ import annotations
 
 import io
 import json
+import math
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -56,9 +60,35 @@ def bank_time_scale(alignment: str, dt_source: float | None, dt_target: float | 
 
 def source_steps(t: np.ndarray, lengths: np.ndarray, time_scale: float = 1.0) -> np.ndarray:
     """Source step (N,) for target steps ``t`` (N,) in episodes of ``lengths`` (N,):
-    round(t·time_scale), held at the episode's last step once it has ended."""
+    round(t·time_scale), held at the episode's last step once it has ended (an index to
+    read; :func:`source_covered` says whether the row is compared at all)."""
     step = np.rint(np.asarray(t, dtype=np.float64) * time_scale).astype(np.int64)
     return np.minimum(step, np.asarray(lengths, dtype=np.int64) - 1)
+
+
+def source_covered(t: np.ndarray, lengths: np.ndarray, time_scale: float = 1.0) -> np.ndarray:
+    """Whether target steps ``t`` (N,) meet a step of their source episodes of ``lengths``
+    (N,), bool (N,): round(t·time_scale) is a step the source took. Past a source episode's
+    end there is no source state-action of that moment; the last row held there (a fallen
+    source's pose) is not one, so Eq. 10's term is 0 and a guide's row is left out
+    (docs/decisions/transfer.md, "A target step past the source's end")."""
+    step = np.rint(np.asarray(t, dtype=np.float64) * time_scale).astype(np.int64)
+    return np.asarray(step < np.asarray(lengths, dtype=np.int64), dtype=bool)
+
+
+def bank_step_limit(target_steps: int, time_scale: float) -> int:
+    """Control steps a bank's source rollouts may run so that they reach as far as a target
+    episode of ``target_steps`` steps does, read with ``time_scale`` source steps per target
+    step (:func:`bank_time_scale`): ceil(target_steps·time_scale), and at least the source
+    step the target's last step reads, plus one. On humanoid-ant, a 1000-step Ant episode
+    (50 s) needs 3334 Humanoid steps (50 s at 0.015 s), not the Humanoid's own 1000 (15 s)."""
+    if target_steps < 1 or not (math.isfinite(time_scale) and time_scale > 0):
+        raise PvedError(
+            f"a bank's step limit needs target steps >= 1 and a positive time scale, got "
+            f"{target_steps} and {time_scale}"
+        )
+    last = int(np.rint((target_steps - 1) * time_scale)) + 1
+    return max(math.ceil(target_steps * time_scale), last)
 
 
 @dataclass
@@ -67,7 +97,7 @@ class SourceBank:
 
     Attributes:
         x: (E, T_max, D_S) robot state then action; rows past an episode's end repeat
-            its last row.
+            its last row (padding: no step compares with them, :func:`source_covered`).
         lengths: (E,) episode lengths.
         keys: (E, K) task parameters the episodes are matched on.
         header: JSON-able description (env id, policy, match keys, dims, seed, the
@@ -112,7 +142,8 @@ class SourceBank:
     def lookup(self, episode: np.ndarray, t: np.ndarray, time_scale: float = 1.0) -> np.ndarray:
         """Source state-actions (N, D_S) of bank episodes ``episode`` (N,) at the source
         step matching target step ``t`` (N,): :func:`source_steps` with ``time_scale``
-        source steps per target step (:func:`bank_time_scale`)."""
+        source steps per target step (:func:`bank_time_scale`); past an episode's end its
+        last row (:func:`source_covered` marks those)."""
         step = source_steps(t, self.lengths[episode], time_scale)
         return np.asarray(self.x[episode, step])
 

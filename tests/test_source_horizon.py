@@ -1,0 +1,82 @@
+"""Issue 64, item 1: the source bank covers the target's whole episode on the pairs' time
+base, and a target step past the end of its source episode is compared with nothing
+(docs/decisions/transfer.md, "A target step past the source's end").
+
+Why: a Humanoid bank episode of 1000 steps lasts 15 s, an Ant episode 50 s; read at the
+same moment, from Ant step 300 on every step met the Humanoid's frozen last row.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pved.envs import make_batched
+from pved.errors import PvedError
+from pved.experiments import stages
+from pved.experiments.inputs import bank_rollout_steps, env_of
+from pved.runs import Run
+from pved.spec import get_preset
+from pved.transfer.source_bank import bank_step_limit, bank_time_scale
+
+TARGET_PUSH = "pved/Reacher4Push-v0"
+
+
+def test_the_step_limit_reaches_as_far_as_the_target_s_episode() -> None:
+    humanoid_per_ant = bank_time_scale("time", 0.015, 0.05)
+    assert bank_step_limit(1000, humanoid_per_ant) == 3334  # 50 s of 0.015 s steps
+    assert round(999 * humanoid_per_ant) < 3334  # the Ant's last step meets a taken one
+    assert bank_step_limit(1000, 1.0) == 1000
+    assert bank_step_limit(10, 0.4) == 5  # ceil(4.0) = 4, but step 9 reads source step 4
+    for bad in ((0, 1.0), (10, 0.0), (10, float("nan"))):
+        with pytest.raises(PvedError, match="step limit"):
+            bank_step_limit(*bad)
+
+
+class _Started(Exception):
+    """Raised where the stage would make its run directory: its config is resolved."""
+
+
+def test_humanoid_ant_s_bank_runs_as_long_as_an_ant_episode(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    configs: list[dict[str, Any]] = []
+    limits: list[int] = []
+
+    def record_and_stop(run: Run) -> None:
+        configs.append(run.config)
+        raise _Started
+
+    def rollouts(env: Any, *args: Any, **kwargs: Any) -> None:
+        limits.append(env.max_episode_steps)
+        raise _Started
+
+    monkeypatch.setattr(Run, "start", record_and_stop)
+    with pytest.raises(_Started):
+        stages.build_bank("humanoid-ant", episodes=2, runs_root=tmp_path)
+    assert configs[0]["step_limit"] == 3334
+    # and the env the rollouts run on truncates there, not at the Humanoid's 1000
+    monkeypatch.setattr(Run, "start", lambda run: None)
+    monkeypatch.setattr(stages, "build_source_bank", rollouts)
+    with pytest.raises(_Started):
+        stages.build_bank("humanoid-ant", episodes=2, runs_root=tmp_path / "b")
+    assert limits == [3334]
+    # the other pairs' agents share a control period and a horizon: their banks as before
+    for pair in ("reacher", "jaco-fetch", "walker-hopper"):
+        preset = get_preset(pair)
+        name, kwargs = env_of(preset, preset.source_agent, preset.target_task)
+        assert bank_rollout_steps(preset, name, kwargs) is None, pair
+
+
+@pytest.mark.parametrize("env_id", [TARGET_PUSH, "Pendulum-v1"])
+def test_a_batched_env_truncates_at_the_step_limit_it_is_given(env_id: str) -> None:
+    env = make_batched(env_id, 2, step_limit=3)
+    env.reset(seed=0)
+    act = np.zeros((2, env.single_action_space.shape[0]))
+    truncated = [bool(env.step(act)[3].all()) for _ in range(4)]
+    assert env.max_episode_steps == 3 and truncated == [False, False, True, False]
+    with pytest.raises(PvedError, match="step_limit"):
+        make_batched(env_id, 1, step_limit=0)
