@@ -130,7 +130,7 @@ def test_a_fresh_protocol_record_holds_only_relative_paths(
 ) -> None:
     import pved.analysis.curves as curves
 
-    def interval(scores: Any) -> dict[str, Any]:  # the paths are judged here, not the CIs
+    def interval(scores: Any, **_: Any) -> dict[str, Any]:  # the paths are judged here, not the CIs
         mean = float(np.mean(scores))
         return {"mean": mean, "mean_ci": [mean, mean], "iqm": mean, "iqm_ci": [mean, mean]}
 

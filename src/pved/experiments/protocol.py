@@ -39,7 +39,7 @@ from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
 from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 from pved.spec import get_preset
-from pved.transfer.methods import NO_TRANSFER, ORACLE, get_method
+from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method
 from pved.transfer.shaping import GUIDE_FORMS
 
 if TYPE_CHECKING:
@@ -327,7 +327,15 @@ def _summarize(
                         entry["shared_collapsed"] = shared_subspace_collapsed(val)
             if done:
                 scores = np.array([results[j.key][f"final/{metric}"] for j in done], float)
-                entry["final"] = bootstrap_summary(scores)
+                # the mean's interval two-level, over the source policies (a reference
+                # method has none: its source tag only numbers its extra seeds) and seeds
+                entry["final"] = bootstrap_summary(
+                    scores,
+                    seeds=[j.kwargs["seed"] for j in done],
+                    sources=None
+                    if method in REFERENCE_METHODS
+                    else [j.tags["source_policy"] for j in done],
+                )
                 entry["runs"] = [
                     {
                         "key": j.key,
@@ -415,7 +423,7 @@ def _each_run(method_summary: Mapping[str, Any]) -> list[str]:
 
 
 def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
-    from pved.analysis.curves import reach_cell
+    from pved.analysis.curves import REPS, SEED, reach_cell
 
     b = plan.budget
     lines = [
@@ -423,8 +431,10 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
         "",
         f"Tuning seeds {list(b.tuning_seeds)}; evaluation seeds {list(b.evaluation_seeds)} "
         f"x {b.source_policies} source policies; {b.model_inits} model initialisations. "
-        "Final performance over the evaluation runs: mean and interquartile mean (IQM) "
-        "with 95% stratified-bootstrap confidence intervals (rliable).",
+        "Final performance over the evaluation runs: the mean with its 95% interval from the "
+        f"two-level bootstrap over source policies and seeds ({REPS:,} resamples, seed "
+        f"{SEED}), and the interquartile mean (IQM) with a one-level 95% interval over runs "
+        "(rliable).",
         "",
     ]
     fingerprints = summary.get("fingerprints") or {}
@@ -438,7 +448,7 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             "",
             f"![curves](curves-{pair}.png)",
             "",
-            "| method | runs | mean [95% CI] | IQM [95% CI] | steps to PPO's final "
+            "| method | runs | mean [95% CI] | IQM [95% CI, one-level] | steps to PPO's final "
             "| steps to the oracle's final | beta | init | shaping term per step, first → "
             "last rollout (Eq. 10's form: D = term / −β) | env reward per step, first → last "
             "rollout |",
