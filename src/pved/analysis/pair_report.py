@@ -238,14 +238,16 @@ def _add_protocol(pair: str, directory: Path, parts: _Parts) -> None:
     budget, label = summary.get("budget", "?"), metric.replace("_", " ")
     notes = [
         f"Protocol {directory} ({budget} budget): final {label} over the evaluation runs, "
-        "mean and interquartile mean (IQM) with 95% stratified-bootstrap CIs (rliable); "
+        "the mean with its 95% CI as the summary records it (the two-level bootstrap over "
+        "source policies and seeds since 2026-12-06; one-level, over runs, before), the "
+        "interquartile mean (IQM) with a one-level 95% CI (rliable); "
         "'steps to PPO's final' (the oracle's) is the env steps a method's mean curve needs "
         "to reach the last point of plain PPO's (the oracle's) mean curve."
     ]
     failed, blocked = len(summary.get("failed") or {}), len(summary.get("blocked") or [])
     if failed or blocked:
         notes.append(f"{failed} runs failed and {blocked} were blocked (see {summary_file}).")
-    header = ["method", "runs", f"final {label}: mean [95% CI]", "IQM [95% CI]"]
+    header = ["method", "runs", f"final {label}: mean [95% CI]", "IQM [95% CI, one-level]"]
     header += ["steps to PPO's final", "steps to the oracle's final", "β", "init"]
     parts.tables.append(f'<p class="note">{escape(" ".join(notes))}</p>' + _table(header, rows))
     if parts.render_videos:
@@ -314,7 +316,7 @@ def _add_transfer_report(pair: str, directory: Path, parts: _Parts) -> None:
         ]
         rows.append(row)
     header = ["method", "seeds", "env steps", f"final {label}: mean [95% CI]"]
-    header += ["IQM [95% CI]"] if has_iqm else []
+    header += ["IQM [95% CI, one-level]"] if has_iqm else []
     header += ["per seed", "curve mean [95% CI]", "final return: mean [95% CI]"]
     ci = results.get("ci95", "± is the 95% t-interval over seeds (report before the bootstrap)")
     note = (
