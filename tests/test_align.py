@@ -186,8 +186,9 @@ def test_ppo_follows_a_guide_on_the_mean_action() -> None:
     guided = train_ppo(_Guided(4), cfg, progress=False)
     plain = train_ppo(PointTarget1D(4), cfg, progress=False)
     obs = np.random.default_rng(0).uniform(-1, 1, (64, 2))
-    assert np.abs(guided.act(obs, deterministic=True) - 0.7).max() < 0.15
-    assert np.abs(plain.act(obs, deterministic=True) - 0.7).max() > 0.2
+    # the guide's step is at most PPO's own (GUIDE_GRAD_RATIO), so it pulls, not pins
+    assert np.abs(guided.act(obs, deterministic=True) - 0.7).max() < 0.25
+    assert np.abs(plain.act(obs, deterministic=True) - 0.7).max() > 0.5
 
 
 def test_the_guide_s_gradient_is_the_same_in_both_backends() -> None:
@@ -200,15 +201,18 @@ def test_the_guide_s_gradient_is_the_same_in_both_backends() -> None:
     tr.rollout()
     mb = first_minibatch(tr, 64)
     s_np = tr._grad_numpy(*mb)
-    g_np = tr.flat.grad_np.copy()
+    g_np, h_np = tr.flat.grad_np.copy(), tr.guide_grad.copy()
     s_t = tr._grad_torch(*mb)
-    g_t = tr.flat.grad_np.copy()
+    g_t, h_t = tr.flat.grad_np.copy(), tr.guide_grad.copy()
     assert s_np["guide_loss"] > 0 and s_np["guide_loss"] == pytest.approx(s_t["guide_loss"])
     assert s_np["loss"] == pytest.approx(s_t["loss"], rel=1e-5)
-    assert np.abs(g_np - g_t).max() <= 1e-5 * np.abs(g_t).max()
-    # and the guide's part is there: without it the gradient differs
+    # PPO's gradient and the guide's, kept apart until PPO's is clipped (pved.rl.guide)
+    for a, b in ((g_np, g_t), (h_np, h_t)):
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max()
+    assert np.abs(h_np).max() > 1e-4
+    # PPO's own part is the gradient without the guide
     s_plain = tr._grad_numpy(*mb[:-1])
-    assert "guide_loss" not in s_plain and np.abs(tr.flat.grad_np - g_np).max() > 1e-4
+    assert "guide_loss" not in s_plain and np.array_equal(tr.flat.grad_np, g_np)
 
 
 def test_align_shaped_ppo_resumes_exactly(inputs: tuple[SourceBank, PVED], tmp_path: Path) -> None:

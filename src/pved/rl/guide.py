@@ -11,24 +11,56 @@ differentiable model prefers needs that model's gradient with respect to the act
 not None) puts a context row per copy in ``info["guide_context"]`` at every step (what
 the loss needs besides the action: for ``pved-align`` the target's robot state and the
 source's shared code at that moment); PPO stores it beside the step and, at each
-minibatch step, adds the guide's gradient with respect to the actor's mean to the
-clipped-surrogate loss's. Kept in ``rl`` as a protocol so that PPO imports nothing from
-the transfer stage above it.
+minibatch step, back-propagates the guide's gradient with respect to the actor's mean
+into a parameter gradient of its own. Kept in ``rl`` as a protocol so that PPO imports
+nothing from the transfer stage above it.
+
+A guide must not take PPO's budget. PPO clips its own gradient (actor, critic and
+log-std together) to one global norm; a guide's gradient added before that clip would
+shrink PPO's share of it the stronger the guide. So PPO clips its own gradient exactly as
+without a guide, then adds the guide's parameter gradient scaled to a norm of at most
+:data:`GUIDE_GRAD_RATIO` times the clipped one's (docs/decisions/transfer.md, "A guide
+that cannot take PPO's budget"). And :class:`RewardGate` turns the guide off for the
+rest of a run once the task is being found: from then on the task reward leads alone.
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import math
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from pved.errors import PvedError
+
 #: The key of the per-step context rows (N, K) in a guided env's ``info``.
 GUIDE_CONTEXT = "guide_context"
+#: The key of a guided env's optional per-step row weights (N,) (bool or 0/1) in ``info``:
+#: a row of weight 0 has nothing to compare with (a target step past its source episode's
+#: end); PPO leaves it out of the guide's loss, where it counts as 0 in the mean over rows.
+GUIDE_MASK = "guide_mask"
+
+#: ρ: at each minibatch the guide's parameter gradient is scaled to a norm of at most ρ
+#: times PPO's own clipped gradient's, then added. 1 lets a guide steer as hard as the
+#: task's advantage does and never harder (set before any run; docs/decisions/transfer.md).
+GUIDE_GRAD_RATIO = 1.0
+#: The reward gate's window: its start is the run's first this many finished episodes,
+#: its recent window the last this many after them.
+GATE_EPISODES = 50
+#: The reward gate closes once the recent window's mean score beats the start's by this
+#: many standard errors (Welch's t): about one chance in a million per look were the two
+#: windows drawn alike (set before any run; docs/decisions/transfer.md).
+GATE_Z = 5.0
 
 
 @runtime_checkable
 class ActionGuide(Protocol):
-    """A differentiable loss on the policy's mean actions, added to PPO's."""
+    """A differentiable loss on the policy's mean actions, added to PPO's.
+
+    A guide may also keep, in an attribute ``last_stats`` (a dict of floats), what its
+    last :meth:`loss_grad` call saw (e.g. the share of rows it masked); PPO records it as
+    ``loss/guide_<key>``. It is not part of the protocol, so a guide without it is one.
+    """
 
     #: columns of one context row (the K of ``info["guide_context"]``)
     context_dim: int
@@ -50,4 +82,97 @@ class ActionGuide(Protocol):
         ...
 
 
-__all__ = ["GUIDE_CONTEXT", "ActionGuide"]
+class RewardGate:
+    """Turns a guide off for the rest of a run once the task reward is being found.
+
+    An episode's score is its success (where the env reports ``is_success``) or else its
+    reward per step, return / length: a score that does not rise by lasting longer, so a
+    target that learns to stay up without doing the task (Hopper's restricted reward has
+    no forward term) does not close the gate. The first :data:`GATE_EPISODES` finished
+    episodes are the run's start; once as many more have finished, each update compares
+    the last :data:`GATE_EPISODES` with the start by Welch's t, and the gate closes for
+    good once t exceeds :data:`GATE_Z`. Two windows of 50 drawn alike give t > 5 about one
+    time in a million, so noise does not close it; a success rate that rises from 0 closes
+    it at about a third of the recent episodes succeeding.
+    """
+
+    def __init__(self, episodes: int = GATE_EPISODES, z: float = GATE_Z) -> None:
+        if episodes < 2 or not z > 0:
+            raise PvedError(f"a reward gate needs >= 2 episodes and z > 0, got {episodes}, {z}")
+        self.episodes, self.z = int(episodes), float(z)
+        self.kind: str | None = None  # "success" or "reward_per_step", fixed at first sight
+        self.start: list[float] = []
+        self.recent: list[float] = []
+        self.t: float | None = None  # the last comparison's t
+        self.closed_at: int | None = None  # the env step it closed at
+
+    @property
+    def open(self) -> bool:
+        """Whether the guide still acts."""
+        return self.closed_at is None
+
+    def observe(
+        self, returns: list[float], lengths: list[float], successes: list[float], step: int
+    ) -> None:
+        """Take one update's finished episodes (returns, lengths and, where the env reports
+        it, successes) seen by env step ``step``; close the gate where the task is found."""
+        if not self.open or not returns:
+            return
+        if self.kind is None:
+            self.kind = "success" if len(successes) == len(returns) else "reward_per_step"
+        if self.kind == "success":
+            scores = [float(x) for x in successes]
+        else:
+            scores = [float(r) / max(float(n), 1.0) for r, n in zip(returns, lengths, strict=True)]
+        for score in scores:
+            if len(self.start) < self.episodes:
+                self.start.append(score)
+            else:
+                self.recent.append(score)
+        self.recent = self.recent[-self.episodes :]
+        if len(self.recent) < self.episodes:
+            return
+        a, b = np.asarray(self.start), np.asarray(self.recent)
+        gap = float(b.mean() - a.mean())
+        se = math.sqrt(float(a.var(ddof=1) + b.var(ddof=1)) / self.episodes)
+        self.t = gap / se if se > 0 else (math.inf if gap > 0 else 0.0)
+        if self.t > self.z:
+            self.closed_at = int(step)
+
+    def scalars(self) -> dict[str, float]:
+        """What a run's metrics record of the gate at an update."""
+        out = {"guide/gate_open": float(self.open)}
+        if self.start:
+            out["guide/gate_start"] = float(np.mean(self.start))
+        if self.recent:
+            out["guide/gate_recent"] = float(np.mean(self.recent))
+        if self.t is not None and math.isfinite(self.t):
+            out["guide/gate_t"] = self.t
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "start": list(self.start),
+            "recent": list(self.recent),
+            "t": self.t,
+            "closed_at": self.closed_at,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.kind = state["kind"]
+        self.start = [float(x) for x in state["start"]]
+        self.recent = [float(x) for x in state["recent"]]
+        self.t = None if state["t"] is None else float(state["t"])
+        self.closed_at = None if state["closed_at"] is None else int(state["closed_at"])
+
+
+__all__ = [
+    "GATE_EPISODES",
+    "GATE_Z",
+    "GUIDE_CONTEXT",
+    "GUIDE_GRAD_RATIO",
+    "GUIDE_MASK",
+    "ActionGuide",
+    "RewardGate",
+]

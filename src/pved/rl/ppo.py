@@ -37,7 +37,7 @@ from pved.checks import check_int, check_number, check_seed
 from pved.envs.base import BatchedEnv
 from pved.errors import OptionError, PvedError
 from pved.flat import FlatAdam, FlatParams, clip_grad_norm_np
-from pved.rl.guide import GUIDE_CONTEXT, ActionGuide
+from pved.rl.guide import GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_MASK, ActionGuide, RewardGate
 from pved.rl.losses import compute_gae, gaussian_log_prob_np, ppo_loss, ppo_loss_grad
 from pved.rl.networks import (
     ActorCritic,
@@ -311,6 +311,17 @@ class _Trainer:
         if guide is not None and not isinstance(guide, ActionGuide):
             raise PvedError(f"{type(env).__name__}.action_guide is not an ActionGuide")
         self.guide: ActionGuide | None = guide
+        # off for the rest of the run once the task is being found (pved.rl.guide)
+        self.gate: RewardGate | None = RewardGate() if guide is not None else None
+        # the guide's parameter gradient, kept apart from PPO's until PPO's is clipped
+        self.guide_grad = np.zeros_like(self.flat.grad_np)
+        self.guide_actor_g = actor_critic_views(
+            [
+                self.guide_grad[sl].reshape(g.shape)
+                for sl, g in zip(self.flat.slices, self.flat.grads_np, strict=True)
+            ],
+            self.net,
+        )[0]
         self.deferred_terms = _deferred_terms_api(env)
 
         T, N, A = config.steps_per_env, config.num_envs, self.act_dim
@@ -324,6 +335,7 @@ class _Trainer:
         self.buf_boot = np.zeros((T, N), dtype=np.float32)
         self.buf_trunc = np.zeros((T, N), dtype=bool)
         self.buf_ctx = np.zeros((T, N, guide.context_dim if guide else 0), dtype=np.float32)
+        self.buf_gmask = np.ones((T, N), dtype=np.float32)  # the env's GUIDE_MASK
         # each step's reward as the env gave it, its env part (info["env_reward"]) and its
         # shaping term (added after the rollout when deferred); read by _account
         self.buf_given = np.zeros((T, N), dtype=np.float64)
@@ -361,6 +373,7 @@ class _Trainer:
             "next_checkpoint": self.next_checkpoint,
             "next_eval": self.next_eval,
             "env_state": _to_saveable(env_state[0]()) if env_state else None,
+            "guide_gate": None if self.gate is None else self.gate.state_dict(),
         }
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -389,6 +402,8 @@ class _Trainer:
         self.elapsed = float(state["elapsed"])
         self.next_checkpoint = int(state["next_checkpoint"])
         self.next_eval = int(state["next_eval"])
+        if self.gate is not None and state.get("guide_gate") is not None:
+            self.gate.load_state_dict(dict(state["guide_gate"]))
         env_state = _env_state_api(self.env)
         if state.get("env_state") is not None and env_state:
             env_state[1](_from_saveable(state["env_state"]))
@@ -449,8 +464,10 @@ class _Trainer:
             self.obs = np.asarray(next_obs, dtype=np.float64)
             if self.guide is not None:  # the context of the step just taken (pre-step state)
                 self.buf_ctx[t] = np.asarray(info[GUIDE_CONTEXT], dtype=np.float32)
+                self.buf_gmask[t] = np.asarray(info.get(GUIDE_MASK, 1.0), dtype=np.float32)
             for key, value in info.items():
-                if key.startswith("reward_") or key == "env_reward":
+                # reward terms, and shares of steps (0/1 per copy, e.g. past the source's end)
+                if key.startswith(("reward_", "share_")) or key == "env_reward":
                     term_sums[key] = term_sums.get(key, 0.0) + float(np.sum(value))
             reward = np.asarray(reward, dtype=np.float64)
             self.buf_given[t] = reward
@@ -486,6 +503,10 @@ class _Trainer:
             term_sums["reward_shaping"] = float(np.sum(terms))
         episodes = self._account(shaped, successes)
         self.global_step += cfg.batch_size
+        if self.gate is not None:
+            self.gate.observe(
+                episodes["return"], episodes["length"], episodes["success"], self.global_step
+            )
         self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
         return episodes
 
@@ -549,14 +570,36 @@ class _Trainer:
         )
 
     # -- update ----------------------------------------------------------------------
-    def _guide(self, ctx: np.ndarray | None, mean: np.ndarray) -> tuple[float, np.ndarray] | None:
-        """The guide's loss and dL/dmean (B, A) at a minibatch, None without a guide."""
-        if self.guide is None or ctx is None:
+    def _guide(
+        self, ctx: np.ndarray | None, mean: np.ndarray, mask: np.ndarray | None = None
+    ) -> tuple[dict[str, float], np.ndarray] | None:
+        """The guide's statistics (its loss first) and dL/dmean (B, A) at a minibatch; None
+        without a guide or once :class:`RewardGate` has closed. Rows of ``mask`` 0 (no
+        source to compare with) are left out and count as 0 in the guide's mean."""
+        if self.guide is None or ctx is None or (self.gate is not None and not self.gate.open):
             return None
         # the rollout just counted has been taken: the share done before this update
         progress = (self.global_step - self.cfg.batch_size) / max(self.cfg.total_steps, 1)
-        loss, grad = self.guide.loss_grad(ctx, np.asarray(mean, dtype=np.float32), progress)
-        return float(loss), np.asarray(grad, dtype=np.float32).reshape(mean.shape)
+        mean32 = np.asarray(mean, dtype=np.float32)
+        keep = None if mask is None else np.asarray(mask) > 0
+        if keep is None or keep.all():
+            loss, grad = self.guide.loss_grad(ctx, mean32, progress)
+            stats = {"guide_loss": float(loss), "guide_rows": 1.0}
+            full = np.asarray(grad, dtype=np.float32).reshape(mean.shape)
+        else:
+            share = float(keep.mean())
+            stats = {"guide_loss": 0.0, "guide_rows": share}
+            full = np.zeros(mean.shape, dtype=np.float32)
+            if share > 0:  # a mean over the rows kept, as one over all with 0 at the others
+                loss, grad = self.guide.loss_grad(ctx[keep], mean32[keep], progress)
+                stats["guide_loss"] = share * float(loss)
+                full[keep] = np.float32(share) * np.asarray(grad, dtype=np.float32).reshape(
+                    int(keep.sum()), -1
+                )
+        extra = getattr(self.guide, "last_stats", None)
+        if isinstance(extra, Mapping):
+            stats.update({f"guide_{k}": float(v) for k, v in extra.items()})
+        return stats, full
 
     def _grad_numpy(
         self,
@@ -567,7 +610,10 @@ class _Trainer:
         ret: np.ndarray,
         val: np.ndarray,
         ctx: np.ndarray | None = None,
+        mask: np.ndarray | None = None,
     ) -> dict[str, float]:
+        """PPO's gradient into ``flat.grad_np`` and, with a guide, the guide's parameter
+        gradient into :attr:`guide_grad` (its stats then carry ``guide_loss``)."""
         cfg = self.cfg
         mean, a_hidden = mlp_forward_np(obs, self.actor, cfg.activation)
         value, c_hidden = mlp_forward_np(obs, self.critic, cfg.activation)
@@ -576,14 +622,17 @@ class _Trainer:
             clip=cfg.clip, clip_value=cfg.clip_value, ent_coef=cfg.ent_coef,
             vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
-        guided = self._guide(ctx, mean)
-        if guided is not None:
-            stats["guide_loss"] = guided[0]
-            stats["loss"] += guided[0]
-            d_mean = d_mean + guided[1]
         mlp_backward_np(obs, a_hidden, d_mean, self.actor, self.actor_g, cfg.activation)
         mlp_backward_np(obs, c_hidden, d_value[:, None], self.critic, self.critic_g, cfg.activation)
         self.log_std_g[...] = d_log_std
+        guided = self._guide(ctx, mean, mask)
+        if guided is not None:
+            stats.update(guided[0])
+            stats["loss"] += guided[0]["guide_loss"]
+            # the guide reaches the actor only; the critic's and log-std's parts stay 0
+            mlp_backward_np(
+                obs, a_hidden, guided[1], self.actor, self.guide_actor_g, cfg.activation
+            )
         return stats
 
     def _grad_torch(
@@ -595,7 +644,9 @@ class _Trainer:
         ret: np.ndarray,
         val: np.ndarray,
         ctx: np.ndarray | None = None,
+        mask: np.ndarray | None = None,
     ) -> dict[str, float]:
+        """:meth:`_grad_numpy` by autograd."""
         cfg = self.cfg
         t = torch.from_numpy
         mean, value = self.net(t(obs))
@@ -605,15 +656,35 @@ class _Trainer:
             vf_coef=cfg.vf_coef, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
         out = {"loss": float(loss.detach()), **{k: float(v) for k, v in st.items()}}
-        guided = self._guide(ctx, mean.detach().numpy())
-        if guided is not None:  # mean · (dL/dmean), dL/dmean held fixed: the guide's gradient
-            loss = loss + (mean * torch.from_numpy(guided[1])).sum()
-            out["guide_loss"] = guided[0]
-            out["loss"] += guided[0]
+        guided = self._guide(ctx, mean.detach().numpy(), mask)
         self.net.zero_grad(set_to_none=True)
-        loss.backward()
+        loss.backward(retain_graph=guided is not None)
         self.flat.grads_from_torch()
+        if guided is not None:  # mean · (dL/dmean), dL/dmean held fixed: the guide's gradient
+            out.update(guided[0])
+            out["loss"] += guided[0]["guide_loss"]
+            self.net.zero_grad(set_to_none=True)
+            (mean * torch.from_numpy(guided[1])).sum().backward()
+            for p, sl in zip(self.flat.params, self.flat.slices, strict=True):
+                self.guide_grad[sl] = 0.0 if p.grad is None else p.grad.numpy().reshape(-1)
         return out
+
+    def _add_guide(self, stats: dict[str, float]) -> None:
+        """Add :attr:`guide_grad`, scaled to a norm of at most ``GUIDE_GRAD_RATIO`` times
+        PPO's clipped gradient's, to ``flat.grad_np`` (pved.rl.guide): PPO's own update is
+        the one it would take without a guide, and the guide adds at most ρ of it."""
+        grad, guide = self.flat.grad_np, self.guide_grad
+        ppo_norm = math.sqrt(float(np.dot(grad, grad)))
+        guide_norm = math.sqrt(float(np.dot(guide, guide)))
+        if not math.isfinite(guide_norm):
+            raise PvedError(f"NaN/inf in the guide's gradient at update {self.update + 1}")
+        bound = GUIDE_GRAD_RATIO * ppo_norm
+        scale = 1.0 if guide_norm <= bound else bound / guide_norm
+        if guide_norm > 0:
+            grad += np.float32(scale) * guide
+        stats["guide_grad_norm"] = guide_norm
+        stats["guide_grad_ratio"] = scale * guide_norm / ppo_norm if ppo_norm > 0 else 0.0
+        stats["guide_bounded"] = float(guide_norm > bound)
 
     def learn(self, advantages: np.ndarray, returns: np.ndarray) -> dict[str, float]:
         """``epochs`` passes of shuffled minibatch steps over the rollout."""
@@ -628,6 +699,7 @@ class _Trainer:
             returns.reshape(n).astype(np.float32),
             self.buf_val.reshape(n),
             self.buf_ctx.reshape(n, self.buf_ctx.shape[-1]),
+            self.buf_gmask.reshape(n),
         )
         grad_fn = self._grad_numpy if cfg.backend == "numpy" else self._grad_torch
         sums: dict[str, float] = {}
@@ -648,6 +720,8 @@ class _Trainer:
                 norm = clip_grad_norm_np(self.flat.grad_np, cfg.max_grad_norm)
                 if not math.isfinite(norm):
                     raise PvedError(f"NaN/inf in PPO gradient at update {self.update + 1}")
+                if "guide_loss" in stats:  # after PPO's own clip, bounded by it
+                    self._add_guide(stats)
                 self.adam.step(self.flat.flat_np, self.flat.grad_np, lr)
                 stats["grad_norm"] = norm
                 for k, v in stats.items():
@@ -806,6 +880,8 @@ def train_ppo(
             scalars["time/steps_per_s_mean"] = trainer.global_step / max(trainer.elapsed, 1e-9)
             scalars.update({f"rollout/{k}": v for k, v in trainer.reward_terms.items()})
             scalars["rollout/clipped_share"] = trainer.clipped_share
+            if trainer.gate is not None:
+                scalars.update(trainer.gate.scalars())
             if episodes["return"]:
                 scalars["episode/return_mean"] = float(np.mean(episodes["return"]))
                 scalars["episode/length_mean"] = float(np.mean(episodes["length"]))

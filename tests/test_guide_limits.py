@@ -1,0 +1,202 @@
+"""Issue 64, item 2: a guide on the mean action that cannot take PPO's budget.
+
+PPO's own gradient is clipped exactly as without a guide; the guide's parameter gradient is
+scaled to at most ρ times that clipped norm and added (``pved.rl.guide``). The align
+guide weighs 0 at rows whose D lies far past the matched training pairs' (the D gate), and
+a reward gate turns any guide off for good once the task is being found.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from helpers import first_minibatch, params_of
+from pved.envs.toy import PointTarget1D
+from pved.errors import PvedError
+from pved.rl.guide import GATE_EPISODES, GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_MASK, RewardGate
+from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
+from pved.runs import Run
+
+
+class _Pull:
+    """A guide pulling the mean action to the context's column: loss k·mean((μ − c)²); it
+    counts the rows it is asked about."""
+
+    context_dim = 1
+
+    def __init__(self, k: float) -> None:
+        self.k = k
+        self.rows: list[int] = []
+
+    def loss_grad(
+        self, context: np.ndarray, mean: np.ndarray, progress: float
+    ) -> tuple[float, np.ndarray]:
+        self.rows.append(len(mean))
+        gap = mean - context
+        return self.k * float((gap**2).mean()), (2 * self.k * gap / gap.size).astype(np.float32)
+
+
+class _Toy(PointTarget1D):
+    """The toy task, with a guide (or none) whose context is 0.7 and, with ``mask``, the
+    guide's rows of the even copies left out."""
+
+    def __init__(self, n: int, guide: _Pull | None, mask: bool = False) -> None:
+        super().__init__(n)
+        self.action_guide = guide
+        self.mask = mask
+
+    def step(self, actions: np.ndarray):  # type: ignore[no-untyped-def]
+        obs, reward, term, trunc, info = super().step(actions)
+        info = dict(info)
+        if self.action_guide is not None:
+            info[GUIDE_CONTEXT] = np.full((self.num_envs, 1), 0.7)
+            if self.mask:
+                info[GUIDE_MASK] = np.arange(self.num_envs) % 2 == 1
+        return obs, reward, term, trunc, info
+
+
+def _cfg(backend: str = "numpy", **kw: Any) -> PPOConfig:
+    base = dict(num_envs=4, steps_per_env=32, minibatch_size=128, epochs=1, hidden_sizes=(16, 16),
+                total_steps=128, checkpoint_every=0, seed=1, backend=backend)  # fmt: skip
+    return PPOConfig(**{**base, **kw})
+
+
+def _one_step(env: _Toy, cfg: PPOConfig) -> dict[str, np.ndarray]:
+    """One PPO update of one minibatch on ``env``: what Adam was given, and (with a
+    guide) PPO's clipped gradient and the guide's, as they were before they were added."""
+    tr = _Trainer(env, cfg)
+    tr.reset_env(0)
+    out: dict[str, np.ndarray] = {}
+    step, add = tr.adam.step, tr._add_guide
+
+    def spy_step(params: np.ndarray, grads: np.ndarray, lr: float) -> None:
+        out["adam"] = grads.copy()
+        step(params, grads, lr)
+
+    def spy_add(stats: dict[str, float]) -> None:
+        out["ppo"], out["guide"] = tr.flat.grad_np.copy(), tr.guide_grad.copy()
+        add(stats)
+        out["stats"] = np.array([stats["guide_grad_ratio"], stats["guide_bounded"]])
+
+    tr.adam.step, tr._add_guide = spy_step, spy_add  # type: ignore[method-assign]
+    tr.rollout()
+    tr.learn(*tr.advantages())
+    return out
+
+
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+@pytest.mark.parametrize("k", [1e4, 1e-4])
+def test_the_guide_adds_at_most_rho_times_ppo_s_clipped_step_which_it_leaves_alone(
+    backend: str, k: float
+) -> None:
+    plain = _one_step(_Toy(4, None), _cfg(backend))
+    guided = _one_step(_Toy(4, _Pull(k)), _cfg(backend))
+    # PPO's own gradient, clipped, is plain PPO's to the bit
+    np.testing.assert_array_equal(guided["ppo"], plain["adam"])
+    added = guided["adam"] - guided["ppo"]
+    ppo_norm, added_norm = np.linalg.norm(guided["ppo"]), np.linalg.norm(added)
+    assert added_norm <= GUIDE_GRAD_RATIO * ppo_norm * (1 + 1e-5)
+    guide_norm = np.linalg.norm(guided["guide"])
+    assert guide_norm > 0 and not guided["guide"][-1]  # the actor's; log-std untouched
+    ratio, bounded = guided["stats"]
+    if k > 1:  # a strong guide is scaled down to ρ of PPO's step, along its own direction
+        assert bounded == 1.0 and ratio == pytest.approx(GUIDE_GRAD_RATIO, rel=1e-5)
+        np.testing.assert_allclose(added, guided["guide"] * (added_norm / guide_norm), atol=1e-6)
+    else:  # a weak one is added as it is
+        assert bounded == 0.0 and ratio == pytest.approx(guide_norm / ppo_norm, rel=1e-4)
+        np.testing.assert_array_equal(guided["adam"], guided["ppo"] + guided["guide"])
+
+
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_a_guide_of_zero_gradient_leaves_ppo_s_run_as_it_was(backend: str) -> None:
+    cfg = _cfg(backend, total_steps=4 * 128, minibatch_size=64, epochs=2)
+    plain = params_of(train_ppo(_Toy(4, None), cfg, progress=False))
+    idle = params_of(train_ppo(_Toy(4, _Pull(0.0)), cfg, progress=False))
+    np.testing.assert_array_equal(plain, idle)
+
+
+def test_ppo_leaves_the_guide_s_masked_rows_out() -> None:
+    guide = _Pull(1.0)
+    tr = _Trainer(_Toy(4, guide, mask=True), _cfg())
+    tr.reset_env(0)
+    tr.rollout()
+    mb = first_minibatch(tr, 64)
+    mask = tr.buf_gmask.reshape(-1)[:64]
+    assert 0 < mask.mean() < 1
+    stats, grad = tr._guide(mb[-1], np.zeros((64, 1), np.float32), mask)  # type: ignore[misc]
+    kept = int(mask.sum())
+    assert guide.rows[-1] == kept and not grad[mask == 0].any() and grad[mask == 1].all()
+    # the guide's mean over its rows, as a mean over all with 0 at the rows left out
+    assert stats["guide_rows"] == kept / 64
+    assert stats["guide_loss"] == pytest.approx(0.49 * kept / 64, rel=1e-6)
+    np.testing.assert_allclose(grad[mask == 1], 2 * (0 - 0.7) / 64, rtol=1e-6)
+
+
+# -- the reward gate ---------------------------------------------------------------------
+
+
+def _feed(gate: RewardGate, scores: np.ndarray, lengths: np.ndarray | None = None) -> None:
+    """Give ``gate`` the episodes 16 an update: success where ``lengths`` is None, else
+    returns of those lengths."""
+    for start in range(0, len(scores), 16):
+        part = scores[start : start + 16]
+        if lengths is None:
+            gate.observe([0.0] * len(part), [1.0] * len(part), list(part), 1000 + start)
+        else:
+            gate.observe(list(part), list(lengths[start : start + 16]), [], 1000 + start)
+
+
+def test_the_reward_gate_stays_open_on_noise() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        gate = RewardGate()
+        _feed(gate, (rng.random(5000) < 0.3).astype(float))
+        assert gate.open and gate.t is not None and abs(gate.t) < 5
+    # rewards: long and short episodes at the same reward per step do not close it
+    lengths = rng.integers(10, 1000, 5000).astype(float)
+    ramp = np.sort(lengths)  # episodes lasting longer and longer, as a body learns to stand
+    gate = RewardGate()
+    _feed(gate, ramp * (1.0 + 0.1 * rng.standard_normal(5000)), ramp)
+    assert gate.open and gate.kind == "reward_per_step"
+
+
+def test_the_reward_gate_closes_for_good_once_the_task_is_found() -> None:
+    gate = RewardGate()
+    _feed(gate, np.zeros(GATE_EPISODES))
+    assert gate.open and gate.scalars()["guide/gate_open"] == 1.0
+    rng = np.random.default_rng(1)
+    _feed(gate, (rng.random(200) < 0.7).astype(float))
+    assert not gate.open and gate.closed_at is not None and gate.kind == "success"
+    closed_at = gate.closed_at
+    _feed(gate, np.zeros(400))  # it stays closed, and where it closed
+    assert not gate.open and gate.closed_at == closed_at
+    assert gate.scalars()["guide/gate_open"] == 0.0
+    again = RewardGate()
+    again.load_state_dict(gate.state_dict())
+    assert again.state_dict() == gate.state_dict()
+    with pytest.raises(PvedError, match="reward gate"):
+        RewardGate(episodes=1)
+
+
+def test_ppo_stops_asking_the_guide_once_the_gate_closes(tmp_path: Path) -> None:
+    # the toy task's success rises from a few in a hundred to most within the run
+    cfg = PPOConfig(num_envs=8, steps_per_env=64, minibatch_size=128, epochs=10,
+                    hidden_sizes=(32, 32), activation="tanh", total_steps=24_576,
+                    checkpoint_every=0, seed=1)  # fmt: skip
+    guide = _Pull(0.0)
+    env = _Toy(8, guide)
+    train_ppo(env, cfg, Run(tmp_path / "run", {"c": 1}), progress=False)
+    rows = Run(tmp_path / "run", {"c": 1}).read_metrics()
+    gate = [r["guide/gate_open"] for r in rows if "guide/gate_open" in r]
+    asked = ["loss/guide_loss" in r for r in rows if "guide/gate_open" in r]
+    closed = gate.index(0.0)
+    assert 0 < closed < len(gate) - 1 and set(gate[closed:]) == {0.0}
+    # the update that saw the gate close is the first without the guide
+    assert all(asked[:closed]) and not any(asked[closed:])
+    assert all(
+        r["loss/guide_grad_ratio"] <= GUIDE_GRAD_RATIO for r in rows if "loss/guide_grad_ratio" in r
+    )
