@@ -388,9 +388,10 @@ class Curve:
         """Mean over runs at each evaluation step, shape (points,)."""
         return np.asarray(self.values.mean(0))
 
-    def band(self, reps: int = 2000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi), each (points,): per evaluation step, the 95% percentile bootstrap CI of
-        the mean over runs (rliable, ``reps`` resamples, reproducible for a given ``seed``).
+    def band(self, reps: int = ONE_LEVEL_REPS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), each (points,): per evaluation step, the one-level 95% percentile
+        bootstrap CI of the mean over runs (rliable, ``reps`` resamples, reproducible for a
+        given ``seed``): a figure's band, not an interval a verdict reads.
         One run gives a zero-width band on the mean. Raises PvedError for NaN/inf values."""
         values = _finite(self.values, f"curve of {self.method}")
         if values.shape[0] == 1:
@@ -548,7 +549,7 @@ def _run_counts(counts: set[int]) -> str:
     return f"n={lo}" if lo == hi else f"n={lo}-{hi}"
 
 
-def panels_figure(panels: list[Panel], reps: int = 2000) -> Figure:
+def panels_figure(panels: list[Panel], reps: int = ONE_LEVEL_REPS) -> Figure:
     """The paper's Fig. 3 layout as a matplotlib Figure (not saved, not closed): one subplot
     per panel side by side (two rows if there are more than 3), x = environment steps; per
     method its mean over runs, a shaded 95% bootstrap band of the mean (``reps`` resamples,
@@ -621,7 +622,7 @@ def panels_figure(panels: list[Panel], reps: int = 2000) -> Figure:
     return fig
 
 
-def plot_panels(panels: list[Panel], path: Path, reps: int = 2000) -> Path:
+def plot_panels(panels: list[Panel], path: Path, reps: int = ONE_LEVEL_REPS) -> Path:
     """Draw ``panels`` as in :func:`panels_figure` and save the PNG atomically (readers see
     the old file or the whole new one). Returns ``path``."""
     fig = panels_figure(panels, reps=reps)  # first: it selects the Agg backend
