@@ -8,18 +8,30 @@ a reward gate turns any guide off for good once the task is being found.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import torch
 
-from helpers import first_minibatch, params_of
+from helpers import first_minibatch, params_of, push_bank_and_model
+from pved.envs import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
+from pved.experiments.inputs import model_dataset_path
+from pved.models import PVED
+from pved.models.base import SharedRep
 from pved.rl.guide import GATE_EPISODES, GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_MASK, RewardGate
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
-from pved.runs import Run
+from pved.runs import Run, file_digest
+from pved.spec import get_preset
+from pved.transfer.align_guide import D_GATE_FACTOR, D_GATE_QUANTILE, matched_distance_limit
+from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
+from pved.transfer.source_bank import SourceBank
+
+TARGET_PUSH = "pved/Reacher4Push-v0"
 
 
 class _Pull:
@@ -200,3 +212,72 @@ def test_ppo_stops_asking_the_guide_once_the_gate_closes(tmp_path: Path) -> None
     assert all(
         r["loss/guide_grad_ratio"] <= GUIDE_GRAD_RATIO for r in rows if "loss/guide_grad_ratio" in r
     )
+
+
+# -- the D gate ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def inputs() -> tuple[SourceBank, PVED]:
+    return push_bank_and_model(episodes=4)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_the_d_gate_gives_rows_far_past_the_training_pairs_no_weight(
+    inputs: tuple[SourceBank, PVED], backend: str
+) -> None:
+    bank, model = inputs
+    target = make_batched(TARGET_PUSH, 16)
+    shaping = LatentShaping(model, bank, 0.5, target.robot_state_indices, form="align")
+    env = ShapedBatchedEnv(target, shaping, ("button_start",))
+    guide = env.action_guide
+    assert guide is not None
+    if backend == "torch":
+        guide.distance = None
+    obs, _ = env.reset(seed=2)
+    ctx = guide.context(obs, env._episode, env._t)
+    mean = np.random.default_rng(0).uniform(-0.9, 0.9, (16, 4)).astype(np.float32)
+    loss, grad = guide.loss_grad(ctx, mean, 0.0)
+    assert guide.last_stats["d_masked"] == 0.0
+    s, k = guide.state_dim, guide.code_dim
+    q_s = SharedRep(torch.as_tensor(ctx[:, s : s + k]), torch.as_tensor(ctx[:, s + k :]))
+    with torch.no_grad():  # the means lie inside the action box: D as Eq. 10 reads it
+        x_t = torch.as_tensor(np.concatenate([ctx[:, :s], mean], 1))
+        d = model.shaping_between(q_s, model.shared_target(x_t)).double().numpy()
+    guide.d_limit = float(np.median(d))
+    kept = d <= guide.d_limit
+    gated_loss, gated = guide.loss_grad(ctx, mean, 0.0)
+    assert guide.last_stats["d_masked"] == pytest.approx(1 - kept.mean())
+    assert not gated[~kept].any()
+    np.testing.assert_allclose(gated[kept], grad[kept], rtol=1e-5, atol=1e-8)
+    assert gated_loss == pytest.approx(0.5 * np.log1p(d[kept]).sum() / 16, rel=1e-4)
+    assert gated_loss < loss
+
+
+def test_the_d_gate_s_limit_is_read_on_the_model_s_own_pairs(
+    inputs: tuple[SourceBank, PVED], tmp_path: Path
+) -> None:
+    bank, model = inputs
+    rng = np.random.default_rng(3)
+    x_s = bank.x.reshape(-1, bank.dim)
+    x_t = rng.standard_normal((len(x_s), model.target_dim)).astype(np.float32)
+    with torch.no_grad():
+        d = model.shaping(torch.as_tensor(x_s), torch.as_tensor(x_t)).double().numpy()
+    limit = matched_distance_limit(model, x_s, x_t)
+    assert limit == pytest.approx(D_GATE_FACTOR * np.quantile(d, D_GATE_QUANTILE), rel=1e-6)
+    with pytest.raises(PvedError, match="matched pairs"):
+        matched_distance_limit(model, x_s[:0], x_t[:0])
+    # the transfer stage finds the pairs by the digest the model names
+    preset = get_preset("reacher")
+    pairs = tmp_path / "reacher/pairs/time/seed3/pairs.npz"
+    pairs.parent.mkdir(parents=True)
+    pairs.write_bytes(b"pairs")
+    model.metadata["dataset"] = file_digest(pairs)
+    assert model_dataset_path(preset, model, tmp_path) == pairs
+    model.metadata["dataset"] = "0" * 16
+    with pytest.raises(PvedError, match="training pairs"):
+        model_dataset_path(preset, model, tmp_path)
+    del model.metadata["dataset"]
+    with pytest.raises(PvedError, match="names no training dataset"):
+        model_dataset_path(preset, model, tmp_path)
+    assert math.isfinite(limit)

@@ -17,6 +17,7 @@ from pved.cli import main
 from pved.models import MODELS, load_model
 from pved.pairing.dataset import load_dataset, save_dataset
 from pved.pretrained import pretrained_policy_path
+from pved.rl.guide import GUIDE_GRAD_RATIO
 from pved.rl.policy import load_policy
 
 TINY_TRANSFER = ["--steps", "4096", "--eval-every", "2048", "--eval-episodes", "16",
@@ -387,7 +388,14 @@ def test_the_align_methods_guide_until_their_own_share_of_the_run(pipeline: Path
         losses = [r["loss/guide_loss"] for r in rows if "loss/guide_loss" in r]
         assert len(losses) == 4, rows
         guided[method] = [loss > 0 for loss in losses]
-        assert json.loads((run / "result.json").read_text())["guide_backend"] == "numpy"
+        result = json.loads((run / "result.json").read_text())
+        assert result["guide_backend"] == "numpy"
+        # the D gate's limit read on the model's own pairs; the gates and the bound recorded
+        assert result["guide_d_limit"] > 0
+        assert [r["guide/gate_open"] for r in rows if "guide/gate_open" in r] == [1.0] * 4
+        ratios = [r["loss/guide_grad_ratio"] for r in rows if "loss/guide_grad_ratio" in r]
+        assert len(ratios) == 4 and max(ratios) <= GUIDE_GRAD_RATIO * (1 + 1e-6)
+        assert all("loss/guide_d_masked" in r for r in rows if "loss/guide_loss" in r)
     assert guided == {
         "pved-align": [True, True, False, False],
         "pved-align-short": [True, False, False, False],

@@ -19,7 +19,7 @@ from pved.pretrained import pretrained_policy_path
 from pved.rl.policy import load_policy
 from pved.spec import PRESETS, get_preset
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
-from pved.transfer.source_bank import SourceBank, build_source_bank
+from pved.transfer.source_bank import SourceBank, build_source_bank, source_covered
 from pved.transfer.source_cache import MIN_BATCH_ROWS, encode_bank, encode_batch_rows
 
 TARGET_PUSH = "pved/Reacher4Push-v0"
@@ -64,14 +64,16 @@ def _model(name: str, bank: SourceBank) -> SharedSpaceModel:
 def _per_step_term(
     shaping: LatentShaping, obs: np.ndarray, act: np.ndarray, episode: np.ndarray, t: np.ndarray
 ) -> np.ndarray:
-    """Eq. 10's term as it was computed before the cache: both halves encoded per step."""
+    """Eq. 10's term as it was computed before the cache: both halves encoded per step
+    (and 0 past the source episode's end, the rule of docs/decisions/transfer.md)."""
     x_t = np.concatenate([obs[:, shaping.robot_state_indices], act], 1)
     x_s = shaping.bank.lookup(episode, t, shaping.time_scale)
     with torch.no_grad():
         d = shaping.model.shaping(
             torch.as_tensor(x_s, dtype=torch.float32), torch.as_tensor(x_t, dtype=torch.float32)
         )
-    return -shaping.beta * d.double().numpy()
+    covered = source_covered(t, shaping.bank.lengths[episode], shaping.time_scale)
+    return np.where(covered, -shaping.beta * d.double().numpy(), 0.0)
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))

@@ -14,15 +14,34 @@ from typing import Any
 import numpy as np
 import pytest
 
+from helpers import push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.experiments import stages
 from pved.experiments.inputs import bank_rollout_steps, env_of
+from pved.models import PVED
+from pved.rl.guide import GUIDE_CONTEXT, GUIDE_MASK
 from pved.runs import Run
 from pved.spec import get_preset
-from pved.transfer.source_bank import bank_step_limit, bank_time_scale
+from pved.transfer.shaping import SOURCE_ENDED, LatentShaping, ShapedBatchedEnv
+from pved.transfer.source_bank import (
+    SourceBank,
+    bank_step_limit,
+    bank_time_scale,
+    source_covered,
+)
 
 TARGET_PUSH = "pved/Reacher4Push-v0"
+MATCH_KEYS = ("button_start",)
+
+
+@pytest.fixture(scope="module")
+def inputs() -> tuple[SourceBank, PVED]:
+    bank, model = push_bank_and_model(episodes=4)
+    # the first episode ends (the source fell) after 3 of its 100 recorded steps: its rows
+    # from step 3 on are real rows, so reading them would give a term
+    short = SourceBank(bank.x, np.array([3, 100, 100, 100]), bank.keys, bank.header)
+    return short, model
 
 
 def test_the_step_limit_reaches_as_far_as_the_target_s_episode() -> None:
@@ -80,3 +99,47 @@ def test_a_batched_env_truncates_at_the_step_limit_it_is_given(env_id: str) -> N
     assert env.max_episode_steps == 3 and truncated == [False, False, True, False]
     with pytest.raises(PvedError, match="step_limit"):
         make_batched(env_id, 1, step_limit=0)
+
+
+def test_a_target_step_past_the_source_s_end_pays_no_term(
+    inputs: tuple[SourceBank, PVED],
+) -> None:
+    bank, model = inputs
+    env = make_batched(TARGET_PUSH, 2)
+    obs, _ = env.reset(seed=1)
+    act = np.zeros((2, env.single_action_space.shape[0]))
+    episode = np.array([0, 1])
+    for form in ("eq10", "log1p"):
+        shaping = LatentShaping(model, bank, 0.5, env.robot_state_indices, form=form)
+        before = shaping.values(obs, act, episode, np.full(2, 2), 2)
+        after = shaping.values(obs, act, episode, np.full(2, 3), 2)
+        # episode 0 ended after step 2: step 3 meets nothing; episode 1 goes on
+        assert (before < 0).all() and after[0] == 0.0 and after[1] < 0
+    assert source_covered(np.array([2, 3, 3]), np.array([3, 3, 4])).tolist() == [1, 0, 1]
+    # on the time base: target step 1 reads source step round(1 · 3.33) = 3, past a 3-step end
+    assert source_covered(np.array([0, 1]), np.array([3, 3]), 10 / 3).tolist() == [1, 0]
+
+
+@pytest.mark.parametrize("form", ["eq10", "align"])
+def test_the_shaped_env_says_which_steps_met_nothing(
+    inputs: tuple[SourceBank, PVED], form: str
+) -> None:
+    bank, model = inputs
+    target = make_batched(TARGET_PUSH, 2)
+    shaping = LatentShaping(model, bank, 0.5, target.robot_state_indices, form=form)
+    env = ShapedBatchedEnv(target, shaping, MATCH_KEYS)
+    env.reset(seed=1)
+    env._episode[:] = [0, 1]  # the short episode and a whole one
+    act = np.zeros((2, env.single_action_space.shape[0]))
+    ended = []
+    for _ in range(5):
+        env.set_mean_actions(act)
+        _, _, _, _, info = env.step(act)
+        ended.append(info[SOURCE_ENDED].tolist())
+        if form == "align":  # PPO leaves the guide's rows past the source's end out
+            assert info[GUIDE_CONTEXT].shape[0] == 2
+            np.testing.assert_array_equal(info[GUIDE_MASK], ~info[SOURCE_ENDED])
+        else:
+            assert GUIDE_MASK not in info
+            np.testing.assert_array_equal(info["reward_shaping"] == 0.0, info[SOURCE_ENDED])
+    assert ended == [[False, False]] * 3 + [[True, False]] * 2

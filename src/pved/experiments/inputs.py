@@ -18,7 +18,7 @@ from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.pretrained import pretrained_policy_path
-from pved.runs import run_file, run_path
+from pved.runs import file_digest, run_file, run_path
 from pved.spec import builtin_names, get_preset, spec_identity
 from pved.transfer.source_bank import SourceBank, bank_step_limit, bank_time_scale
 
@@ -191,3 +191,26 @@ def bank_rollout_steps(preset: PairPreset, name: str, env_kwargs: dict[str, Any]
         source.close()
         target.close()
     return need if need > own else None
+
+
+def model_dataset_path(
+    preset: PairPreset, model: SharedSpaceModel, runs_root: Path = DEFAULT_RUNS
+) -> Path:
+    """The paired dataset ``model`` was fitted on: the pair's collected dataset under
+    ``runs_root`` (its default first, then any other alignment or seed) whose digest is the
+    one the model's metadata names. :class:`PvedError` naming where it looked when none
+    is, or when the model names none."""
+    want = model.metadata.get("dataset")
+    if not want:
+        raise PvedError(
+            f"the model names no training dataset (fitted outside {preset.name}'s stages)"
+        )
+    first = default_dataset_path(preset.name, runs_root)
+    others = sorted(Path(runs_root, preset.name, "pairs").glob("*/seed*/pairs.npz"))
+    for path in [first, *(p for p in others if p != first)]:
+        if path.is_file() and file_digest(path) == want:
+            return path
+    raise PvedError(
+        f"the model's training pairs (digest {want}) are not under "
+        f"{Path(runs_root, preset.name, 'pairs')}: collect them there (pved collect-pairs)"
+    )

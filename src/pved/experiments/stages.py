@@ -37,6 +37,7 @@ from pved.experiments.inputs import (
     check_model_for,
     default_dataset_path,
     env_of,
+    model_dataset_path,
     policy_path,
 )
 from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
@@ -66,7 +67,7 @@ from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.spec import get_preset, preset_for_agent, spec_identity
-from pved.transfer.align_guide import AlignGuide
+from pved.transfer.align_guide import AlignGuide, matched_distance_limit
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
@@ -691,6 +692,9 @@ def transfer(
             align_anneal=spec.align_anneal,
         )
         env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
+        if isinstance(env.action_guide, AlignGuide):  # its D gate reads the model's pairs
+            pairs = load_dataset(model_dataset_path(preset, model, runs_root))
+            env.action_guide.d_limit = matched_distance_limit(model, *pairs.model_inputs())
     guide = getattr(env, "action_guide", None)
     eval_fn = _eval_fn(
         name, eval_episodes, 10**6 + seed, env_kwargs, info_keys=preset.eval_info_keys
@@ -725,6 +729,7 @@ def transfer(
             "policy": str(policy_file),
             # pved-align's loss in numpy or by autograd: rounding apart, the same run
             **({"guide_backend": guide.backend} if isinstance(guide, AlignGuide) else {}),
+            **({"guide_d_limit": guide.d_limit} if isinstance(guide, AlignGuide) else {}),
             **{f"final/{k}": v for k, v in final.items()},
         }
     )

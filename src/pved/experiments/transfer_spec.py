@@ -16,10 +16,11 @@ from pved.checks import check_int, given, named_options
 from pved.errors import PvedError
 from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
 from pved.models.registry import MODELS
+from pved.rl.guide import GATE_EPISODES, GATE_Z, GUIDE_GRAD_RATIO
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file, run_path
 from pved.spec import get_preset, spec_identity
-from pved.transfer.align_guide import ALIGN_ANNEAL
+from pved.transfer.align_guide import ALIGN_ANNEAL, D_GATE_FACTOR, D_GATE_QUANTILE, D_GATE_ROWS
 from pved.transfer.methods import get_method
 from pved.transfer.prior_guide import check_prior_model
 from pved.transfer.shaping import GUIDE_FORMS, check_shaping_action, check_shaping_form
@@ -65,13 +66,36 @@ def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
     """The entries of a shaped transfer run's config that say how Eq. 10 is computed
     (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
     target action encoded, and the term scaled by the shaped return's std but never
-    clipped. Runs made before 2026-12-05 computed otherwise and lack them, so their config
-    hashes differ, and a protocol does not take them (``Job.required_config``)."""
+    clipped; and a target step past the end of its source episode compared with nothing
+    (``source_end``; docs/decisions/transfer.md, "A target step past the source's end").
+    Runs made before 2026-12-05 (``source_end``: before issue 64) computed otherwise and
+    lack them, so their config hashes differ, and a protocol does not take them
+    (``Job.required_config``)."""
     return {
         "bank_time": get_preset(pair).pairing.align,
         "shaping_action": shaping_action,
         "reward_scaling": "term-scaled-unclipped",
+        "source_end": "no-comparison",
     }
+
+
+def guide_limits(form: str) -> dict[str, Any]:
+    """What bounds a guide form's loss on the mean action (``pved.rl.guide``): its
+    gradient's norm at most ``grad_ratio`` times PPO's clipped one's, the reward gate's
+    window and t, and for the align form the D gate (``pved.transfer.align_guide``).
+    In the run's config, so a run under other limits has another hash."""
+    limits: dict[str, Any] = {
+        "grad_ratio": GUIDE_GRAD_RATIO,
+        "gate_episodes": GATE_EPISODES,
+        "gate_z": GATE_Z,
+    }
+    if form == "align":
+        limits["d_gate"] = {
+            "quantile": D_GATE_QUANTILE,
+            "factor": D_GATE_FACTOR,
+            "rows": D_GATE_ROWS,
+        }
+    return limits
 
 
 def transfer_spec(
@@ -181,6 +205,7 @@ def transfer_spec(
             config["shaping_form"] = shaping_form
         if shaping_form in GUIDE_FORMS:
             config["align_anneal"] = align_anneal
+            config["guide_limits"] = guide_limits(shaping_form)
         elif recipe.anneal is not None:  # a reward form's term annealed (pved-anneal)
             if shaping_form == "potential":
                 raise PvedError(

@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
 from pved.models.numpy_distance import TargetDistance, numpy_distance_covers
 from pved.transfer.source_cache import EncodedBank
@@ -36,6 +37,36 @@ class GuideSource(Protocol):
     def robot_state_indices(self) -> np.ndarray: ...
 
     def encoded(self, call_rows: int) -> EncodedBank: ...
+
+
+#: The D gate (docs/decisions/transfer.md, "A guide that cannot take PPO's budget"): a row
+#: whose D exceeds :data:`D_GATE_FACTOR` times the :data:`D_GATE_QUANTILE` quantile of D
+#: over the model's matched training pairs lies where the encoders saw no pair like it,
+#: and its gradient says nothing the pairs taught: weight 0. A tenfold margin over the
+#: 99th percentile leaves the matched pairs' own tail in (set before any run).
+D_GATE_QUANTILE = 0.99
+D_GATE_FACTOR = 10.0
+#: Matched training pairs the quantile is read on (seeded sample; the whole set if fewer).
+D_GATE_ROWS = 20_000
+
+
+def matched_distance_limit(
+    model: SharedSpaceModel, x_s: np.ndarray, x_t: np.ndarray, seed: int = 0
+) -> float:
+    """The D gate's limit: :data:`D_GATE_FACTOR` × the :data:`D_GATE_QUANTILE` quantile of
+    Eq. 10's D over :data:`D_GATE_ROWS` seeded rows of the model's training pairs
+    (``x_s`` (M, D_S) time-matched with ``x_t`` (M, D_T), as the model was fitted on)."""
+    if len(x_s) == 0 or len(x_s) != len(x_t):
+        raise PvedError(f"the D gate needs matched pairs, got {len(x_s)} and {len(x_t)} rows")
+    rng = np.random.default_rng(seed)
+    pick = np.sort(rng.choice(len(x_s), size=min(D_GATE_ROWS, len(x_s)), replace=False))
+    parts = []
+    with torch.no_grad():
+        for rows in np.array_split(pick, max(1, -(-len(pick) // 4096))):
+            source = torch.as_tensor(x_s[rows], dtype=torch.float32)
+            target = torch.as_tensor(x_t[rows], dtype=torch.float32)
+            parts.append(model.eval().shaping(source, target).double().numpy())
+    return D_GATE_FACTOR * float(np.quantile(np.concatenate(parts), D_GATE_QUANTILE))
 
 
 #: The share of a run's env steps over which the ``"align"`` form's weight falls from β to
@@ -65,6 +96,10 @@ class AlignGuide:
 
     A context row is the target's robot state at the step, then the source's posterior
     mean (K) and, for a stochastic model, its log-variance (K).
+
+    With :attr:`d_limit` set (:func:`matched_distance_limit`, the transfer stage sets it)
+    a row whose D exceeds it weighs 0 (the D gate); :attr:`last_stats` says what share of
+    the last call's rows it left out, and the weight.
     """
 
     def __init__(
@@ -91,6 +126,9 @@ class AlignGuide:
         # and :meth:`context` gives zeros instead of looking them up (a resumed run looks
         # them up until its first update: the same numbers, a little later)
         self.faded = False
+        # the D gate's limit (None: no gate), and what the last loss_grad call saw
+        self.d_limit: float | None = None
+        self.last_stats: dict[str, float] = {}
 
     @property
     def backend(self) -> str:
@@ -120,6 +158,7 @@ class AlignGuide:
         """w · mean over rows of log(1 + D) and its gradient (B, A) w.r.t. ``mean``;
         where w is 0 the guide is :attr:`faded` from then on."""
         w = self.weight(progress)
+        self.last_stats = {"weight": w, "d_masked": 0.0}
         if w == 0.0:
             self.faded = True
             return 0.0, np.zeros_like(mean, dtype=np.float32)
@@ -138,8 +177,9 @@ class AlignGuide:
         clipped = np.clip(mu, self.low_np, self.high_np)
         x_t = np.concatenate([ctx[:, :s], clipped], 1)
         distance, done = self.distance.forward(ctx[:, s : s + k], ctx[:, s + k :], x_t)
-        loss = w * float(np.log1p(distance).mean(dtype=np.float64))
-        d_distance = np.float32(w / len(mu)) / (np.float32(1.0) + distance)
+        kept = self._d_gate(distance)
+        loss = w * float((np.log1p(distance) * kept).mean(dtype=np.float64))
+        d_distance = np.float32(w / len(mu)) / (np.float32(1.0) + distance) * kept
         grad = self.distance.input_grad(done, d_distance)[:, s:]
         # torch.clamp's gradient: 1 inside the box, bounds included, 0 outside
         grad *= clipped == mu
@@ -157,9 +197,27 @@ class AlignGuide:
         x_t = torch.cat([ctx[:, :s], torch.clamp(mu, self.low, self.high)], 1)
         model = self.shaping.model
         distance = model.shaping_between(q_s, model.shared_target(x_t))
-        loss = w * torch.log1p(distance).mean()
+        kept = torch.from_numpy(self._d_gate(distance.detach().numpy()))
+        loss = w * (torch.log1p(distance) * kept).mean()
         (grad,) = torch.autograd.grad(loss, mu)  # the model's own parameters stay untouched
         return float(loss.detach()), grad.numpy()
 
+    def _d_gate(self, distance: np.ndarray) -> np.ndarray:
+        """Row weights (B,) float32 of the D gate, 1 where D is within :attr:`d_limit` (all
+        without a limit); records the share left out in :attr:`last_stats`."""
+        if self.d_limit is None:
+            return np.ones(len(distance), dtype=np.float32)
+        kept = np.asarray(distance, dtype=np.float64) <= self.d_limit
+        self.last_stats["d_masked"] = 1.0 - float(kept.mean())
+        return kept.astype(np.float32)
 
-__all__ = ["ALIGN_ANNEAL", "AlignGuide", "GuideSource"]
+
+__all__ = [
+    "ALIGN_ANNEAL",
+    "D_GATE_FACTOR",
+    "D_GATE_QUANTILE",
+    "D_GATE_ROWS",
+    "AlignGuide",
+    "GuideSource",
+    "matched_distance_limit",
+]

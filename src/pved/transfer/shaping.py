@@ -36,10 +36,10 @@ from pved.checks import check_number
 from pved.envs.base import BatchedEnv, Info
 from pved.errors import PvedError
 from pved.models.base import SharedRep, SharedSpaceModel
-from pved.rl.guide import GUIDE_CONTEXT
+from pved.rl.guide import GUIDE_CONTEXT, GUIDE_MASK
 from pved.transfer.align_guide import ALIGN_ANNEAL, AlignGuide
 from pved.transfer.prior_guide import PriorGuide, check_prior_model
-from pved.transfer.source_bank import SourceBank
+from pved.transfer.source_bank import SourceBank, source_covered
 from pved.transfer.source_cache import (
     MIN_BATCH_ROWS,
     EncodedBank,
@@ -58,6 +58,10 @@ from pved.transfer.source_cache import (
 SHAPING_FORMS = ("eq10", "log1p", "potential", "align", "prior")
 #: The forms that pay no reward term but give PPO a loss on the mean action (an ActionGuide).
 GUIDE_FORMS = ("align", "prior")
+
+#: The ``info`` key of the steps (N,) bool past the end of their source episode, compared
+#: with nothing (``source_bank.source_covered``); PPO logs its share (``share_`` keys).
+SOURCE_ENDED = "share_source_ended"
 
 # Which target action Eq. 10 encodes: "mean" is the policy's mean action at s_T (what the
 # pairs and the bank record), "taken" the sampled, clipped action the env was stepped with.
@@ -246,7 +250,13 @@ class LatentShaping:
         d = distance.double().numpy()
         if self.form == "log1p":
             d = np.log1p(d)
-        return -self.beta * d
+        # past the end of a source episode there is nothing to compare with: no term
+        return np.where(self.covered(episode, t), -self.beta * d, 0.0)
+
+    def covered(self, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Whether target steps ``t`` (N,) of bank episodes ``episode`` (N,) meet a step
+        the source took, bool (N,) (:func:`pved.transfer.source_bank.source_covered`)."""
+        return source_covered(t, self.bank.lengths[episode], self.time_scale)
 
     def encoded(self, call_rows: int) -> EncodedBank:
         """The bank's source posteriors, encoded at the first call in batches sized after
@@ -404,11 +414,14 @@ class ShapedBatchedEnv(BatchedEnv):
             value = self.shaping.reward(self._obs, encoded, self._episode, self._t)
             shaping = self.shaping.term(value, self._previous)
             self._previous = value.copy()  # never the returned term itself
+        covered = self.shaping.covered(self._episode, self._t)
         obs, env_reward, terminated, truncated, info = self.env.step(actions)
         info = dict(info)
         if context is not None:
             info[GUIDE_CONTEXT] = context
+            info[GUIDE_MASK] = covered  # PPO leaves the guide's rows past the source's end out
         info["env_reward"] = env_reward
+        info[SOURCE_ENDED] = ~covered
         done = terminated | truncated
         if pending is not None:
             pending.done = np.asarray(done, dtype=bool).copy()
@@ -549,6 +562,9 @@ class LatentShapingWrapper(
         info = dict(info)
         info["env_reward"] = float(env_reward)
         info["reward_shaping"] = shaping
+        info[SOURCE_ENDED] = not bool(
+            self.shaping.covered(np.array([self._episode]), np.array([self._t]))[0]
+        )
         self._t += 1
         self._obs = np.asarray(obs)
         return obs, float(env_reward) + shaping, terminated, truncated, info
