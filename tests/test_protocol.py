@@ -21,6 +21,7 @@ from helpers import run_cli, stock_reacher_spec
 from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.config import get_budget
 from pved.errors import PvedError
+from pved.experiments import watch
 from pved.experiments.protocol import COPYABLE_STAGES, copy_stage_runs
 from pved.experiments.protocol_plan import (
     PLAN_FILE,
@@ -513,7 +514,7 @@ def test_live_view_eta_past_a_day_keeps_its_hours(
     status = view.update(0, 2, 0, 9, 100_000, 112_640_000, force=True)
     assert status["eta_s"] == pytest.approx(112_540)
     assert stream.getvalue().rstrip().endswith("ETA 31:15:40")
-    assert runner._duration_text(59.6) == "00:01:00"
+    assert runner.LiveView is watch.LiveView and watch.duration_text(59.6) == "00:01:00"
 
 
 def _ran_at(log: str) -> float:

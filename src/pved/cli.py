@@ -95,8 +95,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def status_parser() -> argparse.ArgumentParser:
+    """The parser of ``pved protocol status DIR`` (alias ``pved protocol-status DIR``)."""
+    p = _Parser(
+        prog="pved protocol status",
+        description="a running (or stopped) protocol's progress, read from its directory "
+        "alone: runs done, running, failed and left, env steps per second, ETA",
+    )
+    p.add_argument("dir", type=Path, metavar="DIR", help="the protocol's --out directory")
+    return p
+
+
+def protocol_status(argv: Sequence[str]) -> int:
+    """``pved protocol status DIR``: parsed and answered before the main parser is built,
+    which imports torch (seconds), and beside ``pved protocol``'s own options, which a
+    sub-command would clash with (:mod:`pved.experiments.watch`)."""
+    from pved.errors import PvedError
+    from pved.experiments.watch import status_text
+
+    try:
+        print(status_text(status_parser().parse_args(argv).dir))
+    except PvedError as exc:
+        print(f"pved: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pved`` console script."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    if words[:2] == ["protocol", "status"]:
+        return protocol_status(words[2:])
+    if words[:1] == ["protocol-status"]:
+        return protocol_status(words[1:])
     import torch
 
     from pved.errors import PvedError

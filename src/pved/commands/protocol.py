@@ -28,6 +28,7 @@ def _cmd_protocol(args: argparse.Namespace) -> None:
         selection_from=args.selection_from,
         preregistration=args.preregistration or (),
         exploratory=args.exploratory,
+        checkpoint_seconds=args.checkpoint_seconds,
     )
     failed = len(summary["failed"]) + len(summary["blocked"])
     print(f"{args.out / 'summary.md'} ({failed} runs failed or blocked)")
@@ -96,7 +97,20 @@ def add_protocol(v: Verbs) -> None:
         help="evaluate a method beyond the paper at the paper budget without a valid "
         "pre-registration; its results are marked exploratory",
     )
+    # each run's checkpoints by wall time, as transfer's and train-policy's (a kill or a
+    # lost node costs a run at most about S seconds)
+    v.add_checkpoint_seconds(p)
     p.set_defaults(func=_cmd_protocol)
+
+
+def add_protocol_status(v: Verbs) -> None:
+    from pved.cli import status_parser
+
+    # answered by pved.cli.protocol_status before this parser is built (no torch); here
+    # so that `pved --help` lists it
+    text = status_parser().description
+    p = v.sub.add_parser("protocol-status", help=text, description=text)
+    p.add_argument("dir", type=Path, metavar="DIR", help="the protocol's --out directory")
 
 
 def _cmd_batch(args: argparse.Namespace) -> None:
@@ -362,6 +376,7 @@ def add_fingerprint(v: Verbs) -> None:
 
 VERBS = (
     add_protocol,
+    add_protocol_status,
     add_batch,
     add_archive,
     add_plot,

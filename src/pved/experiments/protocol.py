@@ -37,6 +37,7 @@ from pved.experiments.runner import RunnerReport, check_reachable, resolve_backe
 from pved.models.train import shared_subspace_collapsed
 from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
 from pved.record_paths import record_path
+from pved.rl.ppo import CHECKPOINT_SECONDS
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 from pved.spec import get_preset
 from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method
@@ -118,6 +119,7 @@ def run_protocol(
     selection_from: Path | str | None = None,
     preregistration: Sequence[Path | str] = (),
     exploratory: bool = False,
+    checkpoint_seconds: float | None = CHECKPOINT_SECONDS,
 ) -> dict[str, Any]:
     """Run (or resume) the protocol into ``out``; returns ``summary.json``'s content.
 
@@ -133,7 +135,10 @@ def run_protocol(
     first (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
     ``paper`` one; a run already copied from an earlier one is kept. ``selection_from``:
     a protocol directory whose β and model selections are used instead of tuning here
-    (:func:`fixed_selections`)."""
+    (:func:`fixed_selections`). ``checkpoint_seconds``: each RL run also checkpoints after
+    the update that ends that much wall time after its last checkpoint, so that a kill or
+    a lost node costs a run at most about that much (``pved transfer``'s default; no run's
+    config holds it, so changing it redoes nothing)."""
     sources: list[Path | str] = (
         []
         if stages_from is None
@@ -141,13 +146,16 @@ def run_protocol(
         if isinstance(stages_from, str | Path)
         else list(stages_from)
     )
-    ProtocolPlan(pairs, methods, budget, Path(out))  # names checked before the selection
+    # names checked before the selection
+    ProtocolPlan(pairs, methods, budget, Path(out), checkpoint_seconds=checkpoint_seconds)
     fixed = (
         None if selection_from is None else fixed_selections(selection_from, pairs, methods, budget)
     )
     gate = check_gate(pairs, methods, budget, out, fixed, preregistration, exploratory, sources)
     fixed = gate.fixed or None  # a pre-registration's selection is the plan's
-    plan = ProtocolPlan(pairs, methods, budget, Path(out), fixed)
+    plan = ProtocolPlan(
+        pairs, methods, budget, Path(out), fixed, checkpoint_seconds=checkpoint_seconds
+    )
     resolve_backend(backend, address)  # before anything is written
     if workers is not None:
         check_int("--workers", workers, low=1)

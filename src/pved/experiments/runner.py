@@ -55,9 +55,9 @@ from typing import Any, Protocol
 
 from pved.blas import kernel_env
 from pved.errors import PvedError
+from pved.experiments.watch import LiveView
 from pved.runs import (
     RESTORED_FROM,
-    atomic_write_json,
     claim_holder,
     last_logged_step,
     to_jsonable,
@@ -416,91 +416,6 @@ def read_job_result(run_dir: Path | None, required_config: Mapping[str, Any] | N
         return None  # damaged: the job runs, and its stage says what is wrong
 
 
-def _duration_text(seconds: float) -> str:
-    """``seconds`` as hours:minutes:seconds, the hours uncapped: a protocol of a day and
-    a half reads 36:00:00 (a clock format wraps it to 12:00:00)."""
-    whole = max(0, round(seconds))
-    return f"{whole // 3600:02d}:{whole // 60 % 60:02d}:{whole % 60:02d}"
-
-
-class LiveView:
-    """Runs done / running / failed, env steps per second and ETA: one line rewritten
-    in place on a terminal, a line every ``every_s`` seconds otherwise; also written to
-    ``status.json`` in the output directory for watching from elsewhere.
-
-    The rate counts only the steps trained by this call: a restarted protocol finds
-    hundreds of finished runs (and checkpoints) within minutes, and counting those as
-    progress gave rates of 100k+ steps/s and an ETA of minutes for hours of work."""
-
-    def __init__(self, status_path: Path | None, stream: Any = None, every_s: float = 30.0):
-        self.status_path = status_path
-        self.stream = stream if stream is not None else sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.every_s = 1.0 if self.tty else every_s
-        self.last = 0.0
-        self.start = time.monotonic()
-        self.start_steps: int | None = None
-
-    def update(
-        self,
-        done: int,
-        running: int,
-        failed: int,
-        pending: int,
-        steps: int,
-        total: int,
-        force: bool = False,
-        earlier_steps: int = 0,
-        away: int = 0,
-    ) -> dict[str, Any]:
-        """``steps``: env steps of the finished and running jobs; ``earlier_steps``: the
-        part of them an earlier call trained (finished runs found on disk, and what the
-        resumed runs had reached), left out of the rate; ``away``: the waiting jobs that
-        an exported batch has claimed."""
-        now = time.monotonic()
-        fresh = steps - earlier_steps
-        if self.start_steps is None:
-            self.start_steps = fresh
-        elapsed = now - self.start
-        rate = (fresh - self.start_steps) / elapsed if elapsed > 0 else 0.0
-        eta = (total - steps) / rate if rate > 0 else None
-        status = {
-            "done": done,
-            "running": running,
-            "failed": failed,
-            "pending": pending,
-            "away": away,
-            "env_steps": steps,
-            "env_steps_earlier": earlier_steps,
-            "env_steps_total": total,
-            "steps_per_s": rate,
-            "eta_s": eta,
-            "elapsed_s": elapsed,
-        }
-        if force or now - self.last >= self.every_s:
-            self.last = now
-            eta_text = "?" if eta is None else _duration_text(eta)
-            line = (
-                f"runs: {done} done, {running} running, {failed} failed, {pending} waiting"
-                + (f" ({away} away in a batch)" if away else "")
-                + " | "
-                f"{steps:,}/{total:,} env steps | {rate:,.0f} steps/s | ETA {eta_text}"
-            )
-            if self.tty:
-                self.stream.write("\r\x1b[2K" + line)
-            else:
-                self.stream.write(line + "\n")
-            self.stream.flush()
-            if self.status_path is not None:
-                atomic_write_json(self.status_path, status)
-        return status
-
-    def close(self) -> None:
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 def run_jobs(
     planner: Planner,
     *,
@@ -590,11 +505,15 @@ def _run(
                     changed = True
         return sorted(bad - set(failed))
 
+    # env steps each job in flight has reached, as last read
+    reached_now: dict[str, int] = {}
+
     def progress_steps() -> int:
         steps = sum(known[k].steps for k in results if k in known)
         for job in in_flight.values():
             if job.run_dir is not None and job.steps:
                 reached = min(job.steps, last_logged_step(job.run_dir))
+                reached_now[job.key] = reached
                 steps += reached
                 # A run under another config starts over (its old records are deleted),
                 # and a resumed one goes back to its checkpoint: what counts as earlier
@@ -602,6 +521,14 @@ def _run(
                 if job.key in earlier:
                     earlier[job.key] = min(earlier[job.key], reached)
         return steps
+
+    def detail() -> dict[str, Any]:
+        """The runs in flight (with their steps) and the failures, for ``status.json``."""
+        running = [
+            {"key": j.key, "steps": reached_now.get(j.key, 0), "of": j.steps}
+            for j in in_flight.values()
+        ]
+        return {"running_runs": running, "failed_runs": dict(failed)}
 
     while True:
         for job in planner.expand(results):
@@ -644,15 +571,17 @@ def _run(
             submit(job)
         if view is not None:
             pending = len(to_run - set(failed) - {j.key for j in in_flight.values()})
+            steps = progress_steps()
             view.update(
                 len(results),
                 len(in_flight),
                 len(failed),
                 pending,
-                progress_steps(),
-                max(planner.expected_steps(), progress_steps()),
+                steps,
+                max(planner.expected_steps(), steps),
                 earlier_steps=sum(earlier.values()),
                 away=len(away),
+                detail=detail(),
             )
         if not in_flight:
             if not away:
@@ -688,6 +617,8 @@ def _run(
             max(planner.expected_steps(), progress_steps()),
             force=True,
             earlier_steps=sum(earlier.values()),
+            detail=detail(),
+            finished=True,
         )
         view.close()
     return RunnerReport(
