@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export MUJOCO_GL ?= osmesa
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: demo test lint docs system-deps clean reproduce publish publish-screen subspaces archive restore publish-docs
+.PHONY: demo test test-ray lint docs system-deps clean reproduce publish publish-screen subspaces archive restore publish-docs
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
@@ -113,6 +113,11 @@ publish-screen: $(STAMP)
 
 test: $(STAMP) lint docs
 	$(PY) -m pytest -q
+
+# A spec pair's protocol on a Ray cluster of two nodes that loses one part-way
+# (tests/test_ray_cluster.py; about two minutes of two cores, so not in `make test`)
+test-ray: $(STAMP)
+	PVED_RAY_CLUSTER_TESTS=1 $(PY) -m pytest -q tests/test_ray_cluster.py
 
 # The documentation site (mkdocs.yml: docs/ and the docstrings into site/), offline, in
 # seconds; warnings are errors, so a broken link or anchor, a page missing from the nav's
