@@ -11,6 +11,12 @@ nothing is reused.
     .venv/bin/python benchmarks/protocol_scaling.py                 # runs = cores
     .venv/bin/python benchmarks/protocol_scaling.py --runs 32 --steps 100000
     .venv/bin/python benchmarks/protocol_scaling.py --backend processes
+    .venv/bin/python benchmarks/protocol_scaling.py --address HEAD:6379 --runs 64
+
+On a running Ray cluster (``--address``, the one ``pved protocol --address`` would use)
+both passes run there: the first with each run waiting for the one before (one at a
+time, wherever Ray places it), the second all at once on every CPU of the cluster; the
+run directories go to ``--root``, which every node must see (a shared file system).
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from pved.experiments.stages import transfer
 class Grid:
     """A fixed set of transfer runs (a runner ``Planner``)."""
 
-    def __init__(self, root: Path, runs: int, steps: int):
+    def __init__(self, root: Path, runs: int, steps: int, one_at_a_time: bool = False):
         self.steps = steps
         self.jobs = [
             Job(
@@ -47,6 +53,8 @@ class Grid:
                     "progress": False,
                 },
                 steps=steps,
+                # each run after the one before: one worker's pass on a whole cluster
+                deps=(f"ppo/seed{seed - 1}",) if one_at_a_time and seed > 0 else (),
             )
             for seed in range(runs)
         ]
@@ -65,14 +73,32 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=50_000, help="env steps per run")
     parser.add_argument("--workers", type=int, default=cores, help="the parallel setting")
     parser.add_argument("--backend", default="auto", help="auto | ray | processes")
+    parser.add_argument("--address", help="a running Ray cluster: measure it instead")
+    parser.add_argument(
+        "--root", type=Path, help="where the runs go (default: a temporary directory)"
+    )
     args = parser.parse_args()
-    backend = resolve_backend(args.backend)
+    backend = resolve_backend(args.backend, args.address)
+    if args.address:
+        import ray
+
+        ray.init(address=args.address, log_to_driver=False)
+        cores = int(ray.cluster_resources().get("CPU", 1))
+        ray.shutdown()
+        args.workers = cores
 
     walls: dict[int, float] = {}
     for workers in (1, args.workers):
-        with tempfile.TemporaryDirectory(prefix="pved-scaling-") as tmp:
-            grid = Grid(Path(tmp), args.runs, args.steps)
-            report = run_jobs(grid, workers=workers, live=False, backend=backend)
+        with tempfile.TemporaryDirectory(prefix="pved-scaling-", dir=args.root) as tmp:
+            serial = bool(args.address) and workers == 1
+            grid = Grid(Path(tmp), args.runs, args.steps, one_at_a_time=serial)
+            report = run_jobs(
+                grid,
+                workers=None if args.address else workers,
+                address=args.address,
+                live=False,
+                backend=backend,
+            )
             if report.failed:
                 raise SystemExit(f"runs failed at {workers} workers: {report.failed}")
             walls[workers] = report.wall_s
