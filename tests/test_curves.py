@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+import pved.analysis.curves as curves
 from pved.analysis.curves import (
     REPS,
     Curve,
@@ -324,22 +325,24 @@ def test_bootstrap_p_values_of_a_bar() -> None:
 
 
 def test_a_methods_interval_is_the_same_whatever_it_is_compared_with() -> None:
-    """bootstrap_mean gives one method one interval: the one it gets in a comparison where
-    its draws come first, not the one it gets drawn after another shaped method's sources
-    (reacher's 15 PPO runs once carried lower bounds 0.199 and 0.140 on two pages)."""
+    """A group's resamples are its own: bootstrap_mean's interval is the one it has in any
+    comparison, first or second, beside a shaped method or not (reacher's 15 PPO runs
+    once carried lower bounds 0.199 and 0.140 on two pages), and a rerun or another
+    process gives the same bounds."""
     ppo = np.array([1.0, 0.0, 0.0, 0.036, 0.0, 0.994, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0])
     shaped, seeds, sources = crossed([0.0, 0.2, 0.9], [0.0, 0.1, 0.0, 0.0, 0.0])
     alone = bootstrap_mean(ppo, seeds=list(range(15)))
+    curves._CACHE.clear()  # drawn again, not read back
     assert alone == bootstrap_mean(ppo, seeds=list(range(15)))  # a rerun: the same bounds
-    first = bootstrap_difference(ppo, shaped, seeds_a=list(range(15)), seeds_b=seeds)
-    assert alone["mean_ci"] == first["a"]["mean_ci"]
     assert (alone["runs"], alone["seeds"], alone["sources"]) == (15, 15, 0)
+    first = bootstrap_difference(ppo, shaped, seeds_a=list(range(15)), seeds_b=seeds)
     after = bootstrap_difference(
         shaped, ppo, seeds_a=seeds, sources_a=sources, seeds_b=list(range(15))
     )
-    assert after["b"]["mean_ci"] != alone["mean_ci"]  # drawn after the sources: other draws
+    assert alone["mean_ci"] == first["a"]["mean_ci"] == after["b"]["mean_ci"]
     two = bootstrap_mean(shaped, seeds=seeds, sources=sources)
     assert two["mean_ci"] == after["a"]["mean_ci"] and two["sources"] == 3
+    assert bootstrap_mean(ppo, seeds=list(range(15)), seed=1) != alone  # the seed moves it
     with pytest.raises(PvedError, match="need seed labels"):
         bootstrap_mean(shaped, sources=sources)
 

@@ -100,7 +100,8 @@ def test_a_changed_record_makes_its_page_stale_until_published(
     summary = json.loads(record.read_text())
     runs = summary["pairs"]["reacher"]["methods"]["pved"]["runs"]
     x = np.array([r["success_rate"] for r in runs])
-    mean = bootstrap_mean(x, [r["seed"] for r in runs], [i // 5 for i in range(15)])
+    sources = [i // 5 for i in range(15)]
+    mean = bootstrap_mean(x, [r["seed"] for r in runs], sources, label=("reacher", "pved"))
     lo, hi = mean["mean_ci"]
     assert f"| pved | 15/15 | {mean['mean']:.3f} [{lo:.3f}, {hi:.3f}] | 0.500" in text
 

@@ -265,6 +265,7 @@ def compare_runs(
             seeds_b=gb["seeds"],
             sources_a=ga["sources"],
             sources_b=gb["sources"],
+            labels=(ga["name"], gb["name"]),
         )
         out["diff"][score] = {"diff": d["diff"], "diff_ci": d["diff_ci"], "p": d["tests"][0]["p"]}
         for g, key in ((ga, "a"), (gb, "b")):
@@ -280,7 +281,12 @@ def compare_runs(
             )
             if score == "final":
                 own = bootstrap_mean(
-                    g["scores"]["final"], g["seeds"], g["sources"], reps=REPS, seed=seed
+                    g["scores"]["final"],
+                    g["seeds"],
+                    g["sources"],
+                    reps=REPS,
+                    seed=seed,
+                    label=g["name"],
                 )
                 entry["final"] = {"mean": own["mean"], "mean_ci": own["mean_ci"]}
             else:
@@ -331,6 +337,7 @@ def _measures(
             seeds_b=gb["seeds"],
             sources_a=g1["sources"],
             sources_b=gb["sources"],
+            labels=(g1["name"], gb["name"]),
         )
         return {"diff": d["diff"], "diff_ci": d["diff_ci"], "p": d["tests"][0]["p"]}
 

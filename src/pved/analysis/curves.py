@@ -10,6 +10,7 @@ interval and the bands of the curve figures, both labelled one-level where print
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -152,42 +153,97 @@ def _cells(
     return sums, counts
 
 
+def _picks(rng: np.random.Generator, k: int, reps: int) -> np.ndarray:
+    """(reps, k): the indices of k draws with replacement from k units, per resample
+    (uint8 where k allows: several times faster to draw and to gather with)."""
+    return rng.integers(0, k, size=(reps, k), dtype=np.uint8 if k <= 255 else np.int64)
+
+
 def _multiplicities(rng: np.random.Generator, k: int, reps: int) -> np.ndarray:
     """(reps, k): how often each of k units is drawn in a resample of k draws with
     replacement."""
-    picks = rng.integers(0, k, size=(reps, k))
     # one bincount over (resample, unit) cells: far faster than np.add.at at 10^5 resamples
-    flat = (np.arange(reps, dtype=np.int64)[:, None] * k + picks).ravel()
+    flat = (np.arange(reps, dtype=np.int64)[:, None] * k + _picks(rng, k, reps)).ravel()
     return np.bincount(flat, minlength=reps * k).reshape(reps, k).astype(np.float64)
 
 
-def _resampled_means(
-    rng: np.random.Generator,
+def _stream(seed: int, *key: object) -> np.random.Generator:
+    """A random stream fixed by ``seed`` and ``key`` (a stable digest, not Python's
+    per-process hash): the same key draws the same resamples in every call and process."""
+    digest = hashlib.blake2b(repr(key).encode(), digest_size=8).digest()
+    return np.random.default_rng([seed, int.from_bytes(digest, "little")])
+
+
+def _order(labels: Sequence[Hashable]) -> list[Hashable]:
+    """The distinct labels in a fixed order (by repr, so that mixed types sort)."""
+    return sorted(set(labels), key=repr)
+
+
+def _drawn_sums(table: np.ndarray, weights: np.ndarray | None, picks: np.ndarray) -> np.ndarray:
+    """(reps,): per resample, the sum over its drawn seeds (``picks``, (reps, m)) of the
+    drawn sources' cells, ``table`` (k, m) weighted by ``weights`` (reps, k; None: one
+    source). In blocks of rows, and a 1-D gather per source: several times faster than
+    a gather over a (reps, m) matrix, which leaves the CPU's cache."""
+    out = np.empty(picks.shape[0])
+    for start in range(0, picks.shape[0], 1 << 16):
+        block = picks[start : start + (1 << 16)]
+        if weights is None:
+            out[start : start + len(block)] = table[0][block].sum(axis=1)
+            continue
+        acc = np.zeros(len(block))
+        for i in range(table.shape[0]):
+            acc += weights[start : start + len(block), i] * table[i][block].sum(axis=1)
+        out[start : start + len(block)] = acc
+    return out
+
+
+_CACHE: dict[tuple[Any, ...], tuple[np.ndarray, list[float]]] = {}
+_CACHE_SIZE = 64
+"""A group's resampled means are kept for its next comparison (a judgement compares one
+method many times; at 10^6 resamples an entry is 8 MB, and the oldest goes first)."""
+
+
+def _group_draws(
     x: np.ndarray,
-    seed_labels: Sequence[Hashable],
-    src_index: np.ndarray,
-    source_weights: np.ndarray,
-) -> np.ndarray:
-    """(reps,): one group's mean in each resample, given each resample's source draw
-    ``source_weights`` (reps, k) (a column of ones for a group without sources); its seeds
-    are drawn here, from ``rng``. NaN where a resample drew only empty cells."""
-    seed_order = list(dict.fromkeys(seed_labels))
-    reps, shape = source_weights.shape[0], (source_weights.shape[1], len(seed_order))
-    sums, counts = _cells(x, _index(seed_labels, seed_order), src_index, shape)
-    picks = rng.integers(0, shape[1], size=(reps, shape[1]))  # the seeds, by index
-    # (The shortcuts below give the same numbers, faster: at 10^5 resamples a gather over
-    # a (reps, m) matrix is most of the cost.)
-    if shape[0] == 1:  # no sources: each seed's column is the same in every resample
-        total, n = sums[0][picks].sum(axis=1), counts[0][picks].sum(axis=1)
+    seeds: Sequence[Hashable] | None,
+    sources: Sequence[Hashable] | None,
+    reps: int,
+    seed: int,
+    label: Hashable = None,
+) -> tuple[np.ndarray, list[float]]:
+    """(reps,): a group's mean in each resample of the two-level bootstrap (NaN where a
+    resample drew only empty cells), and its 95% interval. Its sources are drawn from a
+    stream fixed by the set of source labels (so groups with the same sources share the
+    draw) and its seeds from one fixed by the group's runs and ``label`` (so its draws are
+    its own, whatever it is compared with)."""
+    seed_labels: Sequence[Hashable] = seeds or list(range(x.size))
+    runs = (x.tobytes(), tuple(map(repr, seed_labels)), tuple(map(repr, sources or ())))
+    key = (*runs, repr(label), reps, seed)
+    if key in _CACHE:
+        return _CACHE[key]
+    if sources is None:
+        weights, src_index = np.ones((reps, 1)), np.zeros(x.size, dtype=np.int64)
     else:
-        # per resample, each seed's column summed over the drawn sources: (reps, m)
-        total = np.take_along_axis(source_weights @ sums, picks, axis=1).sum(axis=1)
-        if np.all(counts == counts[0, 0]):  # every cell alike: k x m cells drawn, c runs each
-            n = np.full(reps, counts[0, 0] * shape[0] * shape[1])
-        else:
-            n = np.take_along_axis(source_weights @ counts, picks, axis=1).sum(axis=1)
+        order = _order(sources)
+        source_rng = _stream(seed, "sources", tuple(map(repr, order)))
+        weights, src_index = _multiplicities(source_rng, len(order), reps), _index(sources, order)
+    seed_order = list(dict.fromkeys(seed_labels))
+    shape = (weights.shape[1], len(seed_order))
+    sums, counts = _cells(x, _index(seed_labels, seed_order), src_index, shape)
+    picks = _picks(_stream(seed, "seeds", *runs, repr(label)), shape[1], reps)  # by index
+    drawn = None if sources is None else weights
+    total = _drawn_sums(sums, drawn, picks)
+    if np.all(counts == counts[0, 0]):  # every cell alike: k x m cells drawn, c runs each
+        n = np.full(reps, counts[0, 0] * shape[0] * shape[1], dtype=np.float64)
+    else:
+        n = _drawn_sums(counts, drawn, picks)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.asarray(total / n)
+        draws = np.asarray(total / n)
+    draws.flags.writeable = False  # shared by every comparison of the group
+    if len(_CACHE) >= _CACHE_SIZE:
+        del _CACHE[next(iter(_CACHE))]
+    _CACHE[key] = (draws, _percentile_ci(draws))
+    return _CACHE[key]
 
 
 def _check_labels(
@@ -219,12 +275,18 @@ def bootstrap_mean(
     sources: Sequence[Hashable] | None = None,
     reps: int = REPS,
     seed: int = SEED,
+    *,
+    label: Hashable = None,
 ) -> dict[str, Any]:
     """One method's mean score with its 95% interval from the two-level bootstrap of
     :func:`bootstrap_difference` (the resamples draw the ``sources`` with replacement,
     then, independently, the ``seeds``, and take every run of each drawn (source, seed)
     cell; no sources: the seeds only; no seeds either: the runs). The interval a table
-    prints beside a method, the same on every page and whatever it is compared with.
+    prints beside a method, the same on every page and whatever it is compared with: the
+    resamples are the ones the method's differences are made of.
+
+    ``label``: the group's name (say its pair and method), so that two groups of equal
+    scores draw apart; without one, equal runs draw alike.
 
     Returns ``{"runs", "seeds", "sources" (0: none), "mean", "mean_ci": [lo, hi]}``.
     Reproducible for a given ``seed``. Raises PvedError for empty, non-1-D or non-finite
@@ -233,20 +295,13 @@ def bootstrap_mean(
         raise PvedError(f"bootstrap needs reps >= 1, got {reps}")
     x = _finite(values, "bootstrap_mean")
     _check_labels(x, seeds, sources, "bootstrap_mean")
-    rng = np.random.default_rng(seed)
-    seed_labels: Sequence[Hashable] = seeds or list(range(x.size))
-    if sources is None:
-        weights, src_index = np.ones((reps, 1)), np.zeros(x.size, dtype=np.int64)
-    else:
-        order = list(dict.fromkeys(sources))
-        weights, src_index = _multiplicities(rng, len(order), reps), _index(sources, order)
-    draws = _resampled_means(rng, x, seed_labels, src_index, weights)
+    _, ci = _group_draws(x, seeds, sources, reps, seed, label)
     return {
         "runs": int(x.size),
-        "seeds": len(dict.fromkeys(seed_labels)),
-        "sources": 0 if sources is None else len(dict.fromkeys(sources)),
+        "seeds": len(dict.fromkeys(seeds or range(x.size))),
+        "sources": 0 if sources is None else len(set(sources)),
         "mean": float(x.mean()),
-        "mean_ci": _percentile_ci(draws),
+        "mean_ci": list(ci),
     }
 
 
@@ -273,13 +328,14 @@ def bootstrap_difference(
     bars: Sequence[float] = (0.0,),
     group_bars: Sequence[float] = (),
     tol: float = 0.0,
+    labels: tuple[Hashable, Hashable] = (None, None),
 ) -> dict[str, Any]:
     """The difference of means between two groups of runs, mean(a) − mean(b), with its 95%
     percentile bootstrap CI, bootstrap p-values against ``bars``, and each group's mean
     with its own CI from the same resamples: a two-level (hierarchical) bootstrap over the
-    source policies and the PPO seeds the runs were made with. (A group's CI here depends
-    on the draws made before its own; the interval a table prints beside one method is
-    :func:`bootstrap_mean`'s, which does not.)
+    source policies and the PPO seeds the runs were made with. A group's resamples are its
+    own (:func:`bootstrap_mean`'s): its CI here is the one it has alone, whatever it is
+    compared with, and the difference's resamples are the two groups' own, subtracted.
 
     ``a`` (n_a,) and ``b`` (n_b,) are per-run scores (e.g. final success rates of two
     methods on one pair). ``seeds_a`` / ``seeds_b``: each run's PPO seed; ``sources_a`` /
@@ -300,11 +356,13 @@ def bootstrap_difference(
     shaped methods of one protocol run with the same source policies), one source draw
     serves both, so a source that helps or hurts both methods alike moves both means
     together and does not widen the interval of their difference; otherwise each group
-    draws its own. Seeds: never paired; each group draws its seeds independently (as
-    ``pved claims`` always has). Plain PPO and the oracle run seeds s, s+1, s+2 that no
-    shaped run shares, and two shaped methods with the same seed share only its initial
-    network before their rewards differ; with seed effects that correlate positively,
-    independent draws make the interval wider, never narrower, than a paired draw.
+    draws its own. Seeds: never paired; each group draws its seeds from a stream of its
+    own, fixed by its runs and its entry of ``labels`` (its name: without names, two
+    groups of the very same runs draw alike and differ by 0 in every resample). Plain PPO
+    and the oracle run seeds s, s+1, s+2 that no shaped run shares, and two shaped methods
+    with the same seed share only its initial network before their rewards differ; with
+    seed effects that correlate positively, independent draws make the interval wider,
+    never narrower, than a paired draw.
 
     The interval holds the central 95% of the resampled differences (the percentile
     method, as rliable's). The p-value of a bar c is ``p`` = min(1, 2 min(P(d* <= c),
@@ -326,7 +384,8 @@ def bootstrap_difference(
     Why numpy rather than rliable: rliable has no two-level bootstrap, and its
     ``StratifiedIndependentBootstrap`` runs its resamples in a Python loop (~0.2 s a call,
     and judging the paper's claims needs dozens of intervals); this draws all resamples at
-    once (``np.random.default_rng(seed)``), with the same percentile rule."""
+    once (from ``np.random.default_rng`` streams fixed by ``seed`` and each group's source
+    labels and runs), with the same percentile rule."""
     if reps < 1:
         raise PvedError(f"bootstrap needs reps >= 1, got {reps}")
     values = {"a": _finite(a, "bootstrap_difference"), "b": _finite(b, "bootstrap_difference")}
@@ -334,41 +393,17 @@ def bootstrap_difference(
     sources = {"a": sources_a, "b": sources_b}
     for name, x in values.items():
         _check_labels(x, seeds[name], sources[name], "bootstrap_difference")
-    # each group's source order; one order (and one draw) for both when they share them
-    order: dict[str, list[Hashable]] = {
-        name: list(dict.fromkeys(labels)) for name, labels in sources.items() if labels is not None
-    }
-    shared = len(order) == 2 and set(order["a"]) == set(order["b"])
-    if shared:
-        order["b"] = order["a"]
-    rng = np.random.default_rng(seed)
-    # source draws first (none for groups without sources, so that seed-only groups draw
-    # exactly as the seed bootstrap always has), then each group's seeds
-    weights: dict[str, np.ndarray] = {}
-    for name in ("a", "b"):
-        if name not in order:
-            weights[name] = np.ones((reps, 1))  # one source, always drawn once
-        elif shared and name == "b":
-            weights["b"] = weights["a"]
-        else:
-            weights[name] = _multiplicities(rng, len(order[name]), reps)
     result: dict[str, Any] = {}
     resampled: dict[str, np.ndarray] = {}
     for name, x in values.items():
-        seed_labels: Sequence[Hashable] = seeds[name] or list(range(x.size))
-        src_labels = sources[name]
-        src_index = (
-            _index(src_labels, order[name])
-            if src_labels is not None
-            else np.zeros(x.size, dtype=np.int64)
-        )
-        resampled[name] = _resampled_means(rng, x, seed_labels, src_index, weights[name])
+        label = labels[0 if name == "a" else 1]
+        resampled[name], ci = _group_draws(x, seeds[name], sources[name], reps, seed, label)
         result[name] = {
             "runs": int(x.size),
-            "seeds": len(dict.fromkeys(seed_labels)),
-            "sources": len(order.get(name, [])),
+            "seeds": len(dict.fromkeys(seeds[name] or range(x.size))),
+            "sources": 0 if sources[name] is None else len(set(sources[name] or ())),
             "mean": float(x.mean()),
-            "mean_ci": _percentile_ci(resampled[name]),
+            "mean_ci": list(ci),
         }
         if group_bars:
             draws = resampled[name][np.isfinite(resampled[name])]

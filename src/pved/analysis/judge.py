@@ -395,6 +395,7 @@ class Judge:
                     run_sources(self.pairs, pair, method),
                     reps=self.reps,
                     seed=self.seed,
+                    label=(pair, method),
                 )
             )
         return self._means[key]
@@ -440,6 +441,7 @@ class Judge:
                     bars=bars,
                     group_bars=group_bars,
                     tol=tol,
+                    labels=((pair, a), (pair, b)),  # each method's own draws, as in mean()
                 )
                 d["tol"] = tol
                 self._diffs[key] = d

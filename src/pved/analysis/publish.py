@@ -6,8 +6,9 @@ carry one interval on every page.
 
 A page holds a table between two markers, ``<!-- pved:table NAME ARGS -->`` and
 ``<!-- /pved:table -->``; :func:`publish` replaces what lies between them with the table
-NAME makes (:data:`pved.analysis.result_tables.TABLES`), and :func:`stale_pages` says which pages differ from their
-records (``pved publish --check``, and the test that keeps the pages true).
+NAME makes (:data:`pved.analysis.result_tables.TABLES`), and :func:`stale_pages` says
+which pages differ from their records (``pved publish --check``, and the test that keeps
+the pages true).
 
 The tables and how their numbers are made: :mod:`pved.analysis.result_tables`.
 """
