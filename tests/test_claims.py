@@ -15,8 +15,6 @@ from pved.analysis.claims import (
     claims_markdown,
     combine,
     family_wise,
-    holm,
-    holm_adjusted,
     judge_claims,
     write_claims,
 )
@@ -34,6 +32,7 @@ from pved.analysis.judge import (
     not_beat_verdict,
     similar_verdict,
 )
+from pved.analysis.transfer_measures import holm, holm_adjusted
 from pved.errors import PvedError
 
 STEPS = [0, 1000, 2000, 3000, 4000]  # early score: the points at steps <= 1000

@@ -12,19 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
-from typing import NoReturn
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, with its refusals (a value of the wrong type, a missing or unknown
-    option) as one ``pved: error:`` line and exit status 2, like every other refusal,
-    rather than the usage text and a second line."""
-
-    def error(self, message: str) -> NoReturn:
-        from pved.errors import PvedError
-
-        raise PvedError(f"{message} (see: {self.prog} --help)")
+from functools import partial
 
 
 def _resolve_pairs(args: argparse.Namespace) -> None:
@@ -44,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``pved`` argument parser (sub-commands)."""
     # the names a choice takes, from the registries that check them (each checks its own
     # and names the known ones in a one-line error, so argparse's `choices` is not used)
-    from pved.commands import Verbs, analysis, protocol, stages
+    from pved.commands import Parser, Verbs, analysis, protocol, runs_parser, stages
     from pved.models import MODELS
     from pved.spec import PRESETS
     from pved.transfer.methods import METHODS
@@ -60,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from pved.rl.ppo import CHECKPOINT_SECONDS
 
-    parser: argparse.ArgumentParser = _Parser(
+    parser: argparse.ArgumentParser = Parser(
         prog="pved",
         description=__doc__.splitlines()[0],
         epilog="Your own robots: write a pair spec file and give it as --pair SPEC.toml "
@@ -79,37 +67,26 @@ def build_parser() -> argparse.ArgumentParser:
             "inf: only every checkpoint_every env steps; default: %(default)g)",
         )
 
-    def add(name: str, help_text: str, runs_default: str = "runs") -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        p.add_argument(
-            "--runs",
-            type=Path,
-            default=Path(runs_default),
-            help="root of the run directories (default: %(default)s)",
-        )
-        return p
-
-    verbs = Verbs(sub, add, add_checkpoint_seconds, pairs, models, methods, pair_help, pair_tasks)
+    verbs = Verbs(
+        sub,
+        partial(runs_parser, sub),
+        add_checkpoint_seconds,
+        pairs,
+        models,
+        methods,
+        pair_help,
+        pair_tasks,
+    )
     for add_verb in (*stages.VERBS, *protocol.VERBS, *analysis.VERBS):
         add_verb(verbs)
     return parser
-
-
-def status_parser() -> argparse.ArgumentParser:
-    """The parser of ``pved protocol status DIR`` (alias ``pved protocol-status DIR``)."""
-    p = _Parser(
-        prog="pved protocol status",
-        description="a running (or stopped) protocol's progress, read from its directory "
-        "alone: runs done, running, failed and left, env steps per second, ETA",
-    )
-    p.add_argument("dir", type=Path, metavar="DIR", help="the protocol's --out directory")
-    return p
 
 
 def protocol_status(argv: Sequence[str]) -> int:
     """``pved protocol status DIR``: parsed and answered before the main parser is built,
     which imports torch (seconds), and beside ``pved protocol``'s own options, which a
     sub-command would clash with (:mod:`pved.experiments.watch`)."""
+    from pved.commands import status_parser
     from pved.errors import PvedError
     from pved.experiments.watch import status_text
 

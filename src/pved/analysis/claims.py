@@ -46,11 +46,19 @@ from pved.analysis.judge import (
     load_pairs,
     num,
 )
+from pved.analysis.transfer_measures import (
+    DEFINITIONS,
+    FAMILY_ALPHA,
+    INSIDE_AA,
+    aa_entry,
+    beside_aa,
+    holm_adjusted,
+    judged_methods,
+    measures_markdown,
+    method_measures,
+)
 from pved.provenance import UNKNOWN, fingerprint_mismatch
 from pved.record_paths import record_path
-
-FAMILY_ALPHA = 0.05
-"""Family-wise error rate of the Holm–Bonferroni view over one judgement's tests."""
 
 
 def combine(verdicts: Sequence[str]) -> str:
@@ -61,25 +69,6 @@ def combine(verdicts: Sequence[str]) -> str:
     if any(v == NOT_HOLD for v in verdicts):
         return NOT_HOLD
     return UNDECIDED
-
-
-def holm_adjusted(pvalues: Sequence[float]) -> list[float]:
-    """Holm–Bonferroni adjusted p-values, in the order given: with the m p-values sorted
-    ascending, p_(i) becomes max over j <= i of min(1, (m − j + 1) p_(j))."""
-    m = len(pvalues)
-    adjusted = [1.0] * m
-    running = 0.0
-    for rank, i in enumerate(sorted(range(m), key=lambda j: pvalues[j])):
-        running = max(running, min(1.0, (m - rank) * float(pvalues[i])))
-        adjusted[i] = running
-    return adjusted
-
-
-def holm(pvalues: Sequence[float], alpha: float = FAMILY_ALPHA) -> list[bool]:
-    """Holm–Bonferroni's step-down decisions at family-wise error rate ``alpha``, in the
-    order given: sorted ascending, p_(1), p_(2), ... are rejected while p_(i) <= alpha /
-    (m − i + 1), and none after the first that is not (the same as adjusted p <= alpha)."""
-    return [p <= alpha for p in holm_adjusted(pvalues)]
 
 
 @dataclass(frozen=True)
@@ -203,15 +192,6 @@ def judge_claims(dirs: Sequence[Path], *, reps: int = REPS, seed: int = SEED) ->
     bootstrap p-value of its test), ``steps_to_ppo_final``, for PPO against the oracle
     ``bar``, and for "does not beat" and "similar" ``margin``. Raises PvedError (one
     line) for bad input (see :func:`load_pairs`)."""
-    # imported here: transfer_measures builds on this module's Holm
-    from pved.analysis.transfer_measures import (
-        DEFINITIONS,
-        aa_entry,
-        beside_aa,
-        judged_methods,
-        method_measures,
-    )
-
     pairs = load_pairs(dirs)
     judge = Judge(pairs, reps=reps, seed=seed)
     claims = []
@@ -396,8 +376,6 @@ def _part_row(part: dict[str, Any]) -> str:
 
 def _aa(part: dict[str, Any]) -> str:
     """A part's A/A check: ppo-aa − ppo [CI] and the flag, or why there is none."""
-    from pved.analysis.transfer_measures import INSIDE_AA
-
     aa = part.get("aa", "–")
     if isinstance(aa, str):
         return aa
@@ -524,8 +502,6 @@ def claims_markdown(result: dict[str, Any]) -> str:
             header,
             *(_part_row(p) for p in claim["parts"]),
         ]
-    from pved.analysis.transfer_measures import measures_markdown
-
     if result.get("transfer_measures"):
         lines += ["", "## Transfer measures against plain PPO", ""]
         lines.append(result["definitions"]["transfer measures and A/A"])

@@ -7,7 +7,7 @@ PPO, with the 95% two-level bootstrap over source policies and PPO seeds of ``pv
 claims`` (:meth:`pved.analysis.judge.Judge.difference`: resamples
 :data:`pved.analysis.judge.REPS`, seed :data:`pved.analysis.judge.SEED`) and its
 two-sided p-value of 0, Holm-adjusted over the pairs (one family per method and
-measure, :func:`pved.analysis.claims.holm_adjusted`):
+measure, :func:`holm_adjusted`):
 
 - ``auc``: the area under the run's evaluation curve, normalised by its step span, so
   on the metric's scale (:func:`pved.analysis.run_curves.auc`): the "total reward"
@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.claims import holm_adjusted
 from pved.analysis.judge import (
     AA_REFERENCE,
     FOUR,
@@ -50,6 +49,29 @@ from pved.analysis.judge import (
     num,
     ppo_final_point,
 )
+
+FAMILY_ALPHA = 0.05
+"""Family-wise error rate of the Holm–Bonferroni view over one judgement's tests."""
+
+
+def holm_adjusted(pvalues: Sequence[float]) -> list[float]:
+    """Holm–Bonferroni adjusted p-values, in the order given: with the m p-values sorted
+    ascending, p_(i) becomes max over j <= i of min(1, (m − j + 1) p_(j))."""
+    m = len(pvalues)
+    adjusted = [1.0] * m
+    running = 0.0
+    for rank, i in enumerate(sorted(range(m), key=lambda j: pvalues[j])):
+        running = max(running, min(1.0, (m - rank) * float(pvalues[i])))
+        adjusted[i] = running
+    return adjusted
+
+
+def holm(pvalues: Sequence[float], alpha: float = FAMILY_ALPHA) -> list[bool]:
+    """Holm–Bonferroni's step-down decisions at family-wise error rate ``alpha``, in the
+    order given: sorted ascending, p_(1), p_(2), ... are rejected while p_(i) <= alpha /
+    (m − i + 1), and none after the first that is not (the same as adjusted p <= alpha)."""
+    return [p <= alpha for p in holm_adjusted(pvalues)]
+
 
 MEASURES = ("auc", "jumpstart", "reach", "final")
 """Taylor & Stone's measures, in the order the tables give them."""

@@ -10,7 +10,44 @@ import argparse
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, NoReturn
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, with its refusals (a value of the wrong type, a missing or unknown
+    option) as one ``pved: error:`` line and exit status 2, like every other refusal,
+    rather than the usage text and a second line."""
+
+    def error(self, message: str) -> NoReturn:
+        from pved.errors import PvedError
+
+        raise PvedError(f"{message} (see: {self.prog} --help)")
+
+
+def runs_parser(
+    sub: Any, name: str, help_text: str, runs_default: str = "runs"
+) -> argparse.ArgumentParser:
+    """A verb's parser with ``--runs``, the root of the run directories it reads or writes."""
+    p: argparse.ArgumentParser = sub.add_parser(name, help=help_text, description=help_text)
+    p.add_argument(
+        "--runs",
+        type=Path,
+        default=Path(runs_default),
+        help="root of the run directories (default: %(default)s)",
+    )
+    return p
+
+
+def status_parser() -> argparse.ArgumentParser:
+    """The parser of ``pved protocol status DIR`` (alias ``pved protocol-status DIR``)."""
+    p = Parser(
+        prog="pved protocol status",
+        description="a running (or stopped) protocol's progress, read from its directory "
+        "alone: runs done, running, failed and left, env steps per second, ETA",
+    )
+    p.add_argument("dir", type=Path, metavar="DIR", help="the protocol's --out directory")
+    return p
 
 
 @dataclass(frozen=True)
@@ -19,7 +56,7 @@ class Verbs:
 
     Attributes:
         sub: the sub-command parsers (``sub.add_parser``).
-        add: a verb's parser with ``--runs``: ``add(name, help, runs_default="runs")``.
+        add: a verb's parser with ``--runs``: :func:`runs_parser` with ``sub`` given.
         add_checkpoint_seconds: adds ``--checkpoint-seconds`` to a parser.
         pairs, models, methods: the names a ``--pair``, ``--model`` or transfer method
             takes, for help texts (from the registries that check them).

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pved.commands import Verbs
+from pved.commands import Verbs, status_parser
 
 
 def _cmd_protocol(args: argparse.Namespace) -> None:
@@ -104,8 +104,6 @@ def add_protocol(v: Verbs) -> None:
 
 
 def add_protocol_status(v: Verbs) -> None:
-    from pved.cli import status_parser
-
     # answered by pved.cli.protocol_status before this parser is built (no torch); here
     # so that `pved --help` lists it
     text = status_parser().description
