@@ -20,11 +20,11 @@ from helpers import first_minibatch, params_of, push_bank_and_model
 from pved.envs import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
-from pved.experiments.inputs import model_dataset_path
 from pved.models import PVED
 from pved.models.base import SharedRep
 from pved.rl.guide import GATE_EPISODES, GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_MASK, RewardGate
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
+from pved.run_layout import model_dataset_path
 from pved.runs import Run, file_digest
 from pved.spec import get_preset
 from pved.transfer.align_guide import D_GATE_FACTOR, D_GATE_QUANTILE, matched_distance_limit

@@ -27,12 +27,11 @@ from pved.experiments.protocol_plan import (
     PLAN_FILE,
     ProtocolPlan,
     fixed_selections,
-    transfer_run_method,
-    transfer_run_name,
 )
 from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import train_policy, transfer
 from pved.experiments.transfer_spec import transfer_spec
+from pved.run_layout import transfer_run_method, transfer_run_name
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 from pved.spec import get_preset, load_pair
 

@@ -18,9 +18,9 @@ from helpers import push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.experiments import stages
-from pved.experiments.inputs import bank_rollout_steps, env_of
 from pved.models import PVED
 from pved.rl.guide import GUIDE_CONTEXT, GUIDE_MASK
+from pved.run_layout import bank_rollout_steps, env_of
 from pved.runs import Run
 from pved.spec import get_preset
 from pved.transfer.shaping import SOURCE_ENDED, LatentShaping, ShapedBatchedEnv

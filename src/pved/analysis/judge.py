@@ -332,7 +332,7 @@ def run_seeds(pairs: dict[str, PairSummary], pair: str, method: str) -> list[Has
 _SHAPED_RUN = re.compile(r"^.+-beta[^/]+-init\d+-src(?P<source>\d+)$")
 """A shaped method's transfer run directory name,
 ``<method>-beta<β>-init<model init>-src<source policy>``
-(:func:`pved.experiments.protocol_plan.transfer_run_name`, not imported: it pulls in torch)."""
+(:func:`pved.run_layout.transfer_run_name`, not imported: it pulls in torch)."""
 
 
 def run_sources(pairs: dict[str, PairSummary], pair: str, method: str) -> list[Hashable] | None:

@@ -50,13 +50,13 @@ import torch
 from pved.analysis.judge import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
-from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model
 from pved.models.train import train_model
 from pved.pairing.align import PHASE_WINDOW, first_component, gait_phase, phase_indices
 from pved.pairing.dataset import PairedDataset, load_dataset
+from pved.run_layout import default_dataset_path, default_model_path
 from pved.runs import atomic_write_json, run_path
 from pved.spec import get_preset
 from pved.transfer.source_bank import load_bank

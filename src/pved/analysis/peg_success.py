@@ -53,10 +53,10 @@ import numpy as np
 from pved.envs.arms import HOLE_CENTER_XY, HOLE_RANGE, TABLE_TOP_Z
 from pved.envs.registry import make_batched
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import transfer_run_method
 from pved.models.registry import load_model
 from pved.record_paths import record_path
 from pved.rl.policy import load_policy
+from pved.run_layout import transfer_run_method
 from pved.runs import atomic_write_json, run_file, run_path
 from pved.transfer.shaping import LatentShaping
 from pved.transfer.source_bank import load_bank

@@ -348,9 +348,9 @@ def audit_pair(
     trained one at ``policy_path``, with D minimised over actions on ``min_rows`` rows (0:
     not), written to ``out`` (JSON, atomically) when given."""
     from pved.envs import env_id
-    from pved.experiments.inputs import check_bank_for, check_model_for
     from pved.models import load_model
     from pved.rl.policy import load_policy
+    from pved.run_layout import check_bank_for, check_model_for
     from pved.runs import atomic_write_json
     from pved.spec import get_preset
     from pved.transfer.source_bank import bank_dt, bank_time_scale, load_bank

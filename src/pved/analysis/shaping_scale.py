@@ -66,11 +66,10 @@ from pved.analysis.curves import SHAPING_KEY, read_eval_points
 from pved.analysis.judge import load_summary
 from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
-from pved.experiments.inputs import default_dataset_path, default_model_path
-from pved.experiments.protocol_plan import transfer_run_name
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
 from pved.pairing.dataset import load_dataset
+from pved.run_layout import default_dataset_path, default_model_path, transfer_run_name
 from pved.runs import atomic_write_json
 
 

@@ -27,10 +27,10 @@ from pved.analysis.tsne import (
 from pved.checks import check_int, check_number, check_seed, check_writable
 from pved.config import PairPreset
 from pved.envs.terrain import CURVE_RAMP_LENGTH
-from pved.experiments.inputs import check_model_for, policy_path
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
 from pved.rl.policy import Policy, load_policy
+from pved.run_layout import check_model_for, policy_path
 from pved.runs import atomic_write_json, run_file
 from pved.spec import get_preset
 from pved.transfer.source_bank import bank_time_scale, env_dt

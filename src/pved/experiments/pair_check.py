@@ -17,8 +17,8 @@ import numpy as np
 from pved.config import PRETRAINED, TRAINED, PairPreset
 from pved.envs import BatchedEnv, make_batched
 from pved.errors import PvedError
-from pved.experiments.inputs import DEFAULT_RUNS, env_of, policy_path
 from pved.rl.external import load_policy_file
+from pved.run_layout import DEFAULT_RUNS, env_of, policy_path
 from pved.spec import get_preset
 
 #: ``evaluate_policy``'s results a metric can name besides ``<info key>_mean``.

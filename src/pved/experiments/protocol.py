@@ -31,13 +31,13 @@ from pved.experiments.protocol_plan import (
     fixed_selections,
     plan_entry,
     relative_plan,
-    transfer_run_method,
 )
 from pved.experiments.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
 from pved.models.train import shared_subspace_collapsed
 from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS
+from pved.run_layout import transfer_run_method
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
 from pved.spec import get_preset
 from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method

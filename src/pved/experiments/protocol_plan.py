@@ -39,7 +39,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
-import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,13 +48,13 @@ import numpy as np
 
 from pved.config import PRETRAINED, TRAINED, ProtocolBudget, get_budget
 from pved.errors import PvedError
-from pved.experiments.inputs import default_dataset_path, default_model_path
 from pved.experiments.runner import Job, read_job_result
 from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
 from pved.experiments.transfer_spec import eq10_config
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds
+from pved.run_layout import default_dataset_path, default_model_path, transfer_run_name
 from pved.runs import run_path
 from pved.spec import get_preset, preset_for_agent
 from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
@@ -165,23 +164,6 @@ def reference_seed(method: str, seed: int, k: int) -> int:
     for the A/A set (:data:`pved.transfer.methods.AA_REFERENCE`) s + :data:`AA_SEED_OFFSET` + k,
     so that its runs share no seed with ``ppo``'s (nor the oracle's)."""
     return seed + k + (AA_SEED_OFFSET if method == AA_REFERENCE else 0)
-
-
-def transfer_run_name(method: str, beta: float, init: int, source: int) -> str:
-    """The run directory name of a shaped method's transfer run in a protocol:
-    ``<method>-beta<β>-init<model init>-src<source policy>`` (one ``seed<k>`` below it
-    per PPO seed)."""
-    return f"{method}-beta{beta:g}-init{init}-src{source}"
-
-
-_SHAPED_RUN_NAME = re.compile(r"^(?P<method>.+)-beta[^/]+-init\d+-src\d+$")
-
-
-def transfer_run_method(name: str) -> str:
-    """The method of a transfer run directory name: the ``<method>`` of
-    :func:`transfer_run_name`'s, else the name itself (``ppo``, ``oracle``)."""
-    match = _SHAPED_RUN_NAME.match(name)
-    return match["method"] if match else name
 
 
 class ProtocolPlan:

@@ -17,7 +17,6 @@ from pved.config import EVAL_NUM_ENVS
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import OptionError, PvedError
-from pved.experiments.inputs import DEFAULT_RUNS, env_of, policy_path
 from pved.pairing.collect import Episode, rollout_first_episodes
 from pved.pairing.minari_io import (
     RecordedData,
@@ -28,6 +27,7 @@ from pved.pairing.minari_io import (
     read_recorded_episodes,
 )
 from pved.rl.external import load_policy_file
+from pved.run_layout import DEFAULT_RUNS, env_of, policy_path
 from pved.spec import get_preset
 
 
@@ -80,8 +80,8 @@ def export_source_dataset(
     keys on the target task, its shared task keys on the training task) are their reset
     options.
 
-    The source's env and policy are the pair spec's (:func:`~pved.experiments.inputs.env_of`,
-    :func:`~pved.experiments.inputs.policy_path`: a shipped policy, the pair's own
+    The source's env and policy are the pair spec's (:func:`~pved.run_layout.env_of`,
+    :func:`~pved.run_layout.policy_path`: a shipped policy, the pair's own
     ``train-policy`` run under ``runs_root``, or the file the spec names), as every other
     stage finds them, so a spec pair whose agents pved does not know exports as a built-in
     one does.

@@ -29,17 +29,6 @@ from pved.config import EVAL_NUM_ENVS, PairPreset
 from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
-from pved.experiments.inputs import (
-    DEFAULT_RUNS,
-    bank_rollout_steps,
-    check_bank_for,
-    check_dataset_for,
-    check_model_for,
-    default_dataset_path,
-    env_of,
-    model_dataset_path,
-    policy_path,
-)
 from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
 from pved.experiments.transfer_spec import transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
@@ -65,6 +54,17 @@ from pved.rl.evaluate import evaluate_policy
 from pved.rl.external import load_policy_file
 from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
+from pved.run_layout import (
+    DEFAULT_RUNS,
+    bank_rollout_steps,
+    check_bank_for,
+    check_dataset_for,
+    check_model_for,
+    default_dataset_path,
+    env_of,
+    model_dataset_path,
+    policy_path,
+)
 from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
 from pved.spec import get_preset, preset_for_agent, spec_identity
 from pved.transfer.align_guide import AlignGuide, matched_distance_limit

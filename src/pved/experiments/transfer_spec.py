@@ -14,10 +14,10 @@ from typing import Any
 
 from pved.checks import check_int, given, named_options
 from pved.errors import PvedError
-from pved.experiments.inputs import DEFAULT_RUNS, default_model_path, env_of
 from pved.models.registry import MODELS
 from pved.rl.guide import GATE_EPISODES, GATE_Z, GUIDE_GRAD_RATIO
 from pved.rl.ppo import PPOConfig
+from pved.run_layout import DEFAULT_RUNS, default_model_path, env_of
 from pved.runs import file_digest, run_file, run_path
 from pved.spec import get_preset, spec_identity
 from pved.transfer.align_guide import ALIGN_ANNEAL, D_GATE_FACTOR, D_GATE_QUANTILE, D_GATE_ROWS

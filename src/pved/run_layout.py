@@ -1,12 +1,15 @@
-"""Where a stage's inputs lie by default, and whether a given one fits the pair.
+"""Where a stage's inputs and runs lie by default, and whether a given input fits the pair.
 
-The stages (:mod:`pved.experiments.stages`) and the analyses that read their files find
-a pair's dataset and models here, and refuse, in one line, a model or a source bank made
-for another pair before any work.
+The stages (:mod:`pved.experiments.stages`), the protocol, and the analyses and
+diagnostics that read their files find a pair's dataset, models, policies and transfer
+runs here, and refuse, in one line, a model or a source bank made for another pair
+before any work. It sits below both the experiments and the analyses, so that reading a
+run directory never needs the code that runs stages.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -214,3 +217,20 @@ def model_dataset_path(
         f"the model's training pairs (digest {want}) are not under "
         f"{Path(runs_root, preset.name, 'pairs')}: collect them there (pved collect-pairs)"
     )
+
+
+def transfer_run_name(method: str, beta: float, init: int, source: int) -> str:
+    """The run directory name of a shaped method's transfer run in a protocol:
+    ``<method>-beta<β>-init<model init>-src<source policy>`` (one ``seed<k>`` below it
+    per PPO seed)."""
+    return f"{method}-beta{beta:g}-init{init}-src{source}"
+
+
+_SHAPED_RUN_NAME = re.compile(r"^(?P<method>.+)-beta[^/]+-init\d+-src\d+$")
+
+
+def transfer_run_method(name: str) -> str:
+    """The method of a transfer run directory name: the ``<method>`` of
+    :func:`transfer_run_name`'s, else the name itself (``ppo``, ``oracle``)."""
+    match = _SHAPED_RUN_NAME.match(name)
+    return match["method"] if match else name
