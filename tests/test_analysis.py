@@ -15,15 +15,15 @@ import pytest
 import torch
 
 import pved  # noqa: F401  (registers the env ids)
-from pved.analysis.bound import (
+from pved.diagnostics.bound import (
     corollary1_rhs,
     estimate_bound,
     gaussian_kl,
     theorem1_bound,
     theorem1_rhs,
 )
-from pved.analysis.pair_report import build_pair_report
-from pved.analysis.tsne import (
+from pved.diagnostics.pair_report import build_pair_report
+from pved.diagnostics.tsne import (
     StripFrame,
     SubspaceData,
     default_later_frames,
@@ -39,7 +39,7 @@ from pved.analysis.tsne import (
     write_x_split,
     x_split_by_group,
 )
-from pved.analysis.video import render_rollout
+from pved.diagnostics.video import render_rollout
 from pved.envs import make_batched
 from pved.envs.terrain import CURVE_RAMP_LENGTH
 from pved.errors import PvedError
@@ -407,8 +407,8 @@ def test_locomotion_rollouts_record_x_and_write_fig8(data: SubspaceData, tmp_pat
 def test_bound_matches_steps_on_the_banks_time_base() -> None:
     # pved bound pairs target step t with the source step the bank gives it in transfer:
     # on humanoid-ant (0.015 s against 0.05 s) Ant step 3 meets Humanoid step 10
-    from pved.analysis.bound import match_steps
-    from pved.analysis.rollouts import EpisodeRecord
+    from pved.diagnostics.bound import match_steps
+    from pved.diagnostics.rollouts import EpisodeRecord
 
     def episode(length: int) -> EpisodeRecord:
         return EpisodeRecord(

@@ -24,8 +24,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pved.analysis import transferred
 from pved.cli import main
+from pved.diagnostics import transferred
 from pved.errors import PvedError
 from pved.experiments import stages
 from pved.pretrained import pretrained_policy_path
@@ -187,10 +187,10 @@ WORK = (
     "pved.experiments.stages.fit_model",
     "pved.experiments.stages.build_source_bank",
     "pved.experiments.stages.evaluate_policy",
-    "pved.analysis.transferred.embed_rollouts",
-    "pved.analysis.transferred.theorem1_bound",
-    "pved.analysis.shaping_audit.audit_transfer_start",
-    "pved.analysis.video._rollout_frames",
+    "pved.diagnostics.transferred.embed_rollouts",
+    "pved.diagnostics.transferred.theorem1_bound",
+    "pved.diagnostics.shaping_audit.audit_transfer_start",
+    "pved.diagnostics.video._rollout_frames",
     "pved.models.train.train_model",
     "pved.experiments.protocol.run_jobs",
     "pved.experiments.demo.collect_pairs",

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from pved.analysis.bound import estimate_bound
-from pved.analysis.pair_report import build_pair_report
 from pved.cli import main
+from pved.diagnostics.bound import estimate_bound
+from pved.diagnostics.pair_report import build_pair_report
 from pved.errors import PvedError
 
 PVED = [sys.executable, "-m", "pved.cli"]

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from helpers import run_cli
-from pved.analysis.pair_signal import format_signal, pair_signal
+from pved.diagnostics.pairing_signal import format_signal, pair_signal
 from pved.errors import PvedError
 
 

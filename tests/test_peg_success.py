@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from pved.analysis import peg_success
+from pved.diagnostics import peg_success
 
 ROOT = Path(__file__).resolve().parents[1]
 PVED = [sys.executable, "-m", "pved", "analyze", "peg-success"]

@@ -902,7 +902,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     assert again["pairs"]["reacher"]["methods"]["pved"]["shared_collapsed"] is recorded
 
     # the pair report of this protocol: one rendered rollout per method, embedded
-    from pved.analysis.pair_report import build_pair_report
+    from pved.diagnostics.pair_report import build_pair_report
 
     report = build_pair_report("reacher", [out], tmp_path / "report.html").read_text()
     for method in ("pved", "ppo"):
@@ -1208,7 +1208,7 @@ def _analyze(analysis: str, *args: str) -> subprocess.CompletedProcess[str]:
 def test_ridge_r2_is_the_share_of_variance_one_side_predicts_on_held_out_episodes() -> None:
     import numpy as np
 
-    from pved.analysis.pairing_signal import ridge_r2
+    from pved.diagnostics.pairing_signal import ridge_r2
 
     rng = np.random.default_rng(0)
     x = rng.normal(size=(20_000, 3))
@@ -1233,7 +1233,7 @@ def test_pairing_signal_refuses_a_corrupt_dataset_in_one_line(tmp_path: Path) ->
 
 
 def test_repairing_by_phase_finds_the_partner_a_lag_took_away() -> None:
-    from pved.analysis import pairing_signal
+    from pved.diagnostics import pairing_signal
     from pved.pairing.dataset import PairedDataset
 
     rng = np.random.default_rng(0)
@@ -1298,8 +1298,8 @@ class _PartCodes:
 def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() -> None:
     import numpy as np
 
-    from pved.analysis.shaping_audit import matched_and_shuffled
-    from pved.analysis.shaping_scale import target_part_swapped
+    from pved.diagnostics.shaping_audit import matched_and_shuffled
+    from pved.diagnostics.shaping_scale import target_part_swapped
 
     rng = np.random.default_rng(0)
     x_t = rng.normal(size=(400, 5)).astype(np.float32)  # 3 state columns, 2 action
@@ -1322,7 +1322,7 @@ def test_swapping_a_part_of_the_target_step_moves_d_only_if_the_code_reads_it() 
 def test_another_episodes_source_step_is_farther_only_if_the_code_reads_the_episode() -> None:
     import numpy as np
 
-    from pved.analysis.shaping_scale import other_episode_same_step
+    from pved.diagnostics.shaping_scale import other_episode_same_step
 
     rng = np.random.default_rng(0)
     episode, step = np.repeat(np.arange(40), 10), np.tile(np.arange(10), 40)
@@ -1344,7 +1344,7 @@ def test_another_episodes_source_step_is_farther_only_if_the_code_reads_the_epis
 def test_spearman_by_seed_counts_degenerate_resamples_as_no_association() -> None:
     import numpy as np
 
-    from pved.analysis.shaping_scale import spearman_by_seed
+    from pved.diagnostics.shaping_scale import spearman_by_seed
 
     # five seeds, three runs each; only seed 3's runs score, and they end nearest
     seeds = [s for s in range(5) for _ in range(3)]

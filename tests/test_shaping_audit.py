@@ -1,4 +1,4 @@
-"""pved.analysis.shaping_audit: the clip shares of the two reward treatments and the
+"""pved.diagnostics.shaping_audit: the clip shares of the two reward treatments and the
 audit of a fresh transfer policy's rollout."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import torch
 
 import pved  # noqa: F401  (registers the env ids)
 from helpers import push_bank_and_model
-from pved.analysis.shaping_audit import audit, clip_shares, rollout_terms
+from pved.diagnostics.shaping_audit import audit, clip_shares, rollout_terms
 from pved.errors import PvedError
 from pved.models import PVED, ModelDims, PVEDConfig
 from pved.rl.ppo import PPOConfig
@@ -62,7 +62,7 @@ def test_audit_of_a_fresh_policy_on_the_push_target() -> None:
 
 
 def test_likelihood_reading_fits_both_variances_on_the_same_pairs(tmp_path: Path) -> None:
-    from pved.analysis.shaping_audit import likelihood_reading
+    from pved.diagnostics.shaping_audit import likelihood_reading
     from pved.experiments.stages import collect_pairs
 
     data = collect_pairs("reacher", episodes=8, runs_root=tmp_path, progress=False)
@@ -89,7 +89,7 @@ def one_thread() -> Iterator[None]:
 
 @pytest.mark.usefixtures("one_thread")
 def test_the_search_over_actions_finds_an_action_whose_code_is_the_source_s() -> None:
-    from pved.analysis.shaping_audit import min_over_actions
+    from pved.diagnostics.shaping_audit import min_over_actions
 
     dims = ModelDims(10, 12, 6, 8)
     torch.manual_seed(0)

@@ -16,7 +16,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
     from pved.errors import PvedError
 
     if args.inputs:
-        from pved.analysis.pair_report import build_pair_report
+        from pved.diagnostics.pair_report import build_pair_report
 
         # The runs-mode options would be silently ignored here; say so instead.
         if args.seeds is not None or args.methods is not None:
@@ -86,7 +86,7 @@ def add_report(v: Verbs) -> None:
 
 
 def _cmd_tsne(args: argparse.Namespace) -> None:
-    from pved.analysis.transferred import analyze_subspaces
+    from pved.diagnostics.transferred import analyze_subspaces
 
     result = analyze_subspaces(
         args.pair,
@@ -140,7 +140,7 @@ def add_tsne(v: Verbs) -> None:
 
 
 def _cmd_bound(args: argparse.Namespace) -> None:
-    from pved.analysis.transferred import bound
+    from pved.diagnostics.transferred import bound
 
     result = bound(
         args.pair,
@@ -176,7 +176,7 @@ def add_bound(v: Verbs) -> None:
 
 
 def _cmd_audit_shaping(args: argparse.Namespace) -> None:
-    from pved.analysis.shaping_audit import audit_pair
+    from pved.diagnostics.shaping_audit import audit_pair
     from pved.runs import run_file
 
     policy = None if args.policy is None else run_file(args.policy, "policy.pt", "policy")
@@ -229,7 +229,7 @@ def add_audit_shaping(v: Verbs) -> None:
 
 
 def _cmd_audit_likelihood(args: argparse.Namespace) -> None:
-    from pved.analysis.shaping_audit import likelihood_reading
+    from pved.diagnostics.shaping_audit import likelihood_reading
     from pved.runs import run_file
 
     print_json(
@@ -264,7 +264,7 @@ def add_audit_likelihood(v: Verbs) -> None:
 
 
 def _cmd_video(args: argparse.Namespace) -> None:
-    from pved.analysis.video import render_rollout
+    from pved.diagnostics.video import render_rollout
     from pved.errors import PvedError
     from pved.runs import run_file
 
@@ -400,13 +400,13 @@ def _cmd_analyze(args: argparse.Namespace) -> None:
     from pved.errors import PvedError
 
     if args.analysis == "subspaces":
-        from pved.analysis.subspaces import subspaces_report
+        from pved.diagnostics.subspaces import subspaces_report
 
         subspaces_report(args.protocol, args.pair, episodes=args.episodes, videos=args.videos)
         print(args.protocol / "subspaces")
         return
     if args.analysis == "shaping-scale":
-        from pved.analysis.shaping_scale import protocol_shaping_scale
+        from pved.diagnostics.shaping_scale import protocol_shaping_scale
 
         tables = protocol_shaping_scale(args.protocol, rows=args.rows, seed=args.seed)[1]
         out = args.protocol / "subspaces" / "shaping_scale.json"
@@ -416,7 +416,7 @@ def _cmd_analyze(args: argparse.Namespace) -> None:
         tables = protocol_source_reading(args.protocol)[1]
         out = args.protocol / "subspaces" / "source_reading.json"
     elif args.analysis == "peg-success":
-        from pved.analysis.peg_success import peg_success
+        from pved.diagnostics.peg_success import peg_success
 
         tables = peg_success(
             args.path,
@@ -431,7 +431,7 @@ def _cmd_analyze(args: argparse.Namespace) -> None:
         is_protocol = (args.path / "protocol.json").is_file()
         out = args.json or (args.path / "subspaces" / "peg_success.json" if is_protocol else None)
     else:
-        from pved.analysis.pairing_signal import compare_datasets, protocol_pairing_signal
+        from pved.diagnostics.pairing_signal import compare_datasets, protocol_pairing_signal
 
         # the dataset options measure datasets, not a protocol: say so rather than ignore them
         if not args.datasets and (

@@ -353,7 +353,7 @@ def _cmd_pair(args: argparse.Namespace) -> None:
     if args.action == "show":
         print(dump_pair(load_pair(args.spec)), end="")
     elif args.action == "signal":
-        from pved.analysis.pair_signal import format_signal, pair_signal
+        from pved.diagnostics.pairing_signal import format_signal, pair_signal
 
         print(
             format_signal(

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.rollouts import make_env, run_episode, shared_task_options
 from pved.checks import check_int, check_seed, check_writable
+from pved.diagnostics.rollouts import make_env, run_episode, shared_task_options
 from pved.errors import PvedError
 from pved.rl.policy import load_policy
 from pved.runs import atomic_write_bytes

@@ -24,7 +24,7 @@ For Humanoid → Ant (Fig. 7 and Fig. 8 of the paper) two additions:
   12 m, where its slope stops rising), from the torso x the locomotion envs report
   (:func:`x_split_by_group`, :func:`write_x_split`).
 
-The rollouts come from :mod:`pved.analysis.rollouts`.
+The rollouts come from :mod:`pved.diagnostics.rollouts`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pved.analysis.rollouts import EpisodeRecord, make_env, model_inputs, run_paired_episodes
+from pved.diagnostics.rollouts import EpisodeRecord, make_env, model_inputs, run_paired_episodes
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.rl.policy import Policy

@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from pved.analysis.judge import load_summary
-from pved.analysis.pair_report import build_pair_report
-from pved.analysis.transferred import analyze_subspaces, bound
+from pved.diagnostics.pair_report import build_pair_report
+from pved.diagnostics.transferred import analyze_subspaces, bound
 from pved.errors import PvedError
 from pved.experiments.protocol_plan import ProtocolPlan, finished_results, indexed_policy
 from pved.experiments.runner import Job

@@ -37,7 +37,7 @@ VIDEO_SUFFIXES = (".gif", ".mp4", ".webm")
 # insertion, small enough to keep a report of 8 methods a few MB
 VIDEO_MAX_STEPS = 300
 VIDEO_SIZE = 160
-# Keys a bound JSON must have: those of pved.analysis.bound.BoundResult the report shows.
+# Keys a bound JSON must have: those of pved.diagnostics.bound.BoundResult the report shows.
 BOUND_KEYS = ("delta", "quantile", "a", "b", "m", "bound", "gap", "held")
 EXPECTED = (
     "expected a protocol directory (protocol.json + summary.json), a transfer-report "
@@ -259,7 +259,7 @@ def _add_method_videos(
 ) -> None:
     """One rollout per method: the policy of its first evaluation run on the target
     task, rendered once into ``<protocol>/videos/<method>.gif`` and reused after."""
-    from pved.analysis.video import render_rollout
+    from pved.diagnostics.video import render_rollout
 
     preset = get_preset(pair)
     env = env_id(preset.target_agent, preset.target_task)
@@ -688,7 +688,7 @@ def build_pair_report(
     * t-SNE directory (``pved tsne --out``): ``numbers.json`` and/or ``tsne_shared.png``,
       ``tsne_individual.png``, ``mark_<j>.png``;
     * bound: a file (or ``bound*.json`` / ``bound*.txt`` in a directory) holding a JSON
-      object with the :class:`pved.analysis.bound.BoundResult` fields, or the line
+      object with the :class:`pved.diagnostics.bound.BoundResult` fields, or the line
       ``pved bound`` prints;
     * videos: ``.gif``/``.mp4``/``.webm`` files, given or anywhere under a given directory.
 

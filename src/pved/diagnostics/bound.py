@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pved.analysis.rollouts import EpisodeRecord, model_inputs, run_paired_episodes
+from pved.diagnostics.rollouts import EpisodeRecord, model_inputs, run_paired_episodes
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.rl.policy import Policy
@@ -239,7 +239,7 @@ def theorem1_bound(
             same reward terms and m compares like with like.
         time_scale: source steps per target step, as in transfer
             (:func:`pved.transfer.source_bank.bank_time_scale`).
-        Others as :func:`pved.analysis.tsne.embed_rollouts`.
+        Others as :func:`pved.diagnostics.tsne.embed_rollouts`.
     """
     tgt_kwargs = {"reward": "full"} if target_env_kwargs is None else dict(target_env_kwargs)
     src, tgt, idx_s, idx_t = run_paired_episodes(

@@ -13,8 +13,10 @@ from typing import Any, NamedTuple
 
 import torch
 
-from pved.analysis.bound import theorem1_bound
-from pved.analysis.tsne import (
+from pved.checks import check_int, check_number, check_seed, check_writable
+from pved.config import PairPreset
+from pved.diagnostics.bound import theorem1_bound
+from pved.diagnostics.tsne import (
     DEFAULT_LATER_FRAME_STRIDE,
     default_later_frames,
     embed_rollouts,
@@ -24,8 +26,6 @@ from pved.analysis.tsne import (
     subspace_numbers,
     write_x_split,
 )
-from pved.checks import check_int, check_number, check_seed, check_writable
-from pved.config import PairPreset
 from pved.envs.terrain import CURVE_RAMP_LENGTH
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
@@ -89,7 +89,7 @@ def analyze_subspaces(
     For Humanoid → Ant also the paper's Fig. 7 and Fig. 8 additions:
 
     * ``target_later_frames`` later target frames per mark, ``later_frame_stride`` control
-      steps apart (None: :func:`pved.analysis.tsne.default_later_frames` of the pair's
+      steps apart (None: :func:`pved.diagnostics.tsne.default_later_frames` of the pair's
       target agent, 2 for Ant, and ``DEFAULT_LATER_FRAME_STRIDE``);
     * on Curve, where the envs report the torso x, ``fig8_groups.png`` and
       ``numbers["x_split"]``: the target's shared-embedding points in ``x_groups``

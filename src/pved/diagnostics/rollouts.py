@@ -1,7 +1,7 @@
 """Gymnasium-form rollouts of a source and a target policy, kept for re-simulation.
 
-The analyses of a transferred target (paper IV.C: :mod:`pved.analysis.tsne`, Theorem 1's
-bound in :mod:`pved.analysis.bound`, the clips of :mod:`pved.analysis.video`) all start
+The analyses of a transferred target (paper IV.C: :mod:`pved.diagnostics.tsne`, Theorem 1's
+bound in :mod:`pved.diagnostics.bound`, the clips of :mod:`pved.diagnostics.video`) all start
 from the same thing: one episode per seed of each agent, the target reset with the
 source's task parameters so both solve the same task instance, and each step's model row
 ``x = concat(robot_state, action)`` (III.C, Eq. 7).

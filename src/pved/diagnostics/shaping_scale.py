@@ -26,7 +26,7 @@ The same rows once more, each target step against the source step at the same st
 another training episode (another task draw: another reach target, another slope):
 how often D is lower against its own source step than against that one. Near 1, the
 code tells this episode's task from another's at the same moment; near 0.5, the term
-could only say when to move, not where (compare :mod:`pved.analysis.peg_success`'s own
+could only say when to move, not where (compare :mod:`pved.diagnostics.peg_success`'s own
 hole against the reflected one, on the target task).
 
 A second table asks whether D tells a good target from a bad one: for each shaped
@@ -64,7 +64,7 @@ from scipy.stats import spearmanr
 
 from pved.analysis.curves import SHAPING_KEY, read_eval_points
 from pved.analysis.judge import load_summary
-from pved.analysis.shaping_audit import distance_stats, matched_and_shuffled
+from pved.diagnostics.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
