@@ -19,6 +19,7 @@ from pved.errors import PvedError
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # every published table at the project's resample count (~25 s of CPU)
 def test_every_page_matches_its_records() -> None:
     """Fails when a table was typed or edited by hand, or a record changed since the last
     `pved publish` (its message names the pages: run `make publish-docs`)."""
