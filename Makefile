@@ -49,7 +49,7 @@ restore: $(STAMP)
 	$(VENV)/bin/pved archive restore --archive docs/protocol/$(PAIR)-$(BUDGET) \
 		--protocol reports/$(PAIR)-$(BUDGET)
 
-# "What the subspaces learned" for a finished protocol (`pved analyze`, pved.analysis):
+# "What the subspaces learned" for a finished protocol (`pved analyze`, pved.diagnostics):
 # t-SNE, bound and the HTML report of PVED's best evaluation run (subspaces), the scale of
 # Eq. 10's distance on the training pairs (shaping-scale), how much the pairing and the
 # models' shared codes relate the two agents (pairing-signal) and each shaped method by

@@ -3,7 +3,7 @@ and on all cores, in one invocation; the last line is the speed-up.
 
 The grid is what the protocol runs most: plain-PPO transfer runs of the Reacher pair
 (``pved.experiments.stages.transfer``), one per seed, each ``--steps`` env steps, all
-through :func:`pved.experiments.runner.run_jobs` (Ray, or ``--backend processes`` where
+through :func:`pved.protocol.runner.run_jobs` (Ray, or ``--backend processes`` where
 Ray is not installed; one CPU per run). Wall times exclude the backend's start-up
 (measured from the first submission); each setting writes to its own fresh directory, so
 nothing is reused.
@@ -28,8 +28,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from pved.experiments.runner import Job, resolve_backend, run_jobs
 from pved.experiments.stages import transfer
+from pved.protocol.runner import Job, resolve_backend, run_jobs
 
 
 class Grid:

@@ -14,7 +14,7 @@ import torch
 from pved import __version__
 from pved.cli import main
 from pved.envs.base import BatchedEnv
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan
 from pved.rl.policy import Policy
 from pved.rl.ppo import PPOConfig, train_ppo
 from pved.runs import Run, atomic_write_json

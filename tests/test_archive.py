@@ -18,10 +18,10 @@ from helpers import reacher_smoke_protocol, run_cli
 from pved import __version__
 from pved.analysis.curves import read_eval_points
 from pved.errors import PvedError
-from pved.experiments.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.experiments.stages import transfer
 from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol.archive import SUMMARY_FILE, restore_archive, save_archive, save_summary
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.runs import RESTORED_FROM, Run, atomic_write_json
 
 

@@ -192,7 +192,7 @@ WORK = (
     "pved.diagnostics.shaping_audit.audit_transfer_start",
     "pved.diagnostics.video._rollout_frames",
     "pved.models.train.train_model",
-    "pved.experiments.protocol.run_jobs",
+    "pved.protocol.driver.run_jobs",
     "pved.experiments.demo.collect_pairs",
 )
 

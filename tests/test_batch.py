@@ -19,16 +19,16 @@ import pytest
 from helpers import reacher_smoke_protocol, run_cli
 from pved import __version__
 from pved.errors import PvedError
-from pved.experiments.batch import (
+from pved.experiments.stages import transfer
+from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol.batch import (
     BATCH_FILE,
     LOG_FILE,
     export_batch,
     import_batch,
     release_batch,
 )
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results
-from pved.experiments.stages import transfer
-from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan, finished_results
 from pved.runs import Run, atomic_write_json, claim_holder, write_claim
 
 

@@ -12,9 +12,9 @@ import pved  # noqa: F401  (registers the env ids)
 from helpers import assert_ppo_resumes_exactly, placeholder_shaping_inputs, push_bank_and_model
 from pved.envs import make_batched
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import ProtocolPlan
 from pved.experiments.stages import transfer_spec
 from pved.models import PVED
+from pved.protocol.plan import ProtocolPlan
 from pved.rl.ppo import PPOConfig
 from pved.runs import config_hash
 from pved.transfer.methods import METHODS, get_method
@@ -159,7 +159,7 @@ def test_protocol_trains_one_model_for_the_methods_that_share_it(tmp_path: Path)
 
 
 def test_the_summary_reads_d_off_the_term_only_for_eq10s_form() -> None:
-    from pved.experiments.protocol import _scale_cells
+    from pved.protocol.driver import _scale_cells
 
     m = {
         "beta": 0.1,

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from pved.errors import PvedError
-from pved.experiments.preregistration import (
+from pved.protocol.preregistration import (
     EXPLORATORY,
     PREREGISTERED,
     check_gate,
@@ -223,8 +223,8 @@ def test_pved_protocol_refuses_before_any_work_and_marks_exploratory_runs(
 ) -> None:
     from helpers import run_cli
     from pved import __version__
-    from pved.experiments.protocol import summarize
-    from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan
+    from pved.protocol.driver import summarize
+    from pved.protocol.plan import PLAN_FILE, ProtocolPlan
     from pved.runs import atomic_write_json
 
     out = tmp_path / "out"

@@ -16,10 +16,10 @@ import pved  # noqa: F401  (registers the env ids)
 from helpers import placeholder_shaping_inputs, push_bank_and_model, run_cli
 from pved.envs import make_batched
 from pved.errors import PvedError
-from pved.experiments.protocol import _scale_cells
-from pved.experiments.protocol_plan import ProtocolPlan
 from pved.experiments.transfer_spec import transfer_spec
 from pved.models import PVED, build_model, save_model
+from pved.protocol.driver import _scale_cells
+from pved.protocol.plan import ProtocolPlan
 from pved.rl.guide import GUIDE_CONTEXT, ActionGuide
 from pved.transfer.align_guide import AlignGuide
 from pved.transfer.methods import get_method

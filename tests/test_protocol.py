@@ -21,16 +21,16 @@ from helpers import run_cli, stock_reacher_spec
 from pved.blas import kernel_env, loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.config import get_budget
 from pved.errors import PvedError
-from pved.experiments import watch
-from pved.experiments.protocol import COPYABLE_STAGES, copy_stage_runs
-from pved.experiments.protocol_plan import (
+from pved.experiments.stages import train_policy, transfer
+from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol import watch
+from pved.protocol.driver import COPYABLE_STAGES, copy_stage_runs
+from pved.protocol.plan import (
     PLAN_FILE,
     ProtocolPlan,
     fixed_selections,
 )
-from pved.experiments.runner import Job, resolve_backend, run_jobs
-from pved.experiments.stages import train_policy, transfer
-from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol.runner import Job, resolve_backend, run_jobs
 from pved.run_layout import transfer_run_method, transfer_run_name
 from pved.runs import RESTORED_FROM, atomic_write_json, config_hash, release_claim, write_claim
 from pved.spec import get_preset, load_pair
@@ -116,7 +116,7 @@ def test_ties_go_to_the_better_return_then_the_grid_order(tmp_path: Path) -> Non
 
 
 def test_scores_within_the_metric_resolution_tie_and_go_to_the_return() -> None:
-    from pved.experiments.protocol_plan import Candidate, _best
+    from pved.protocol.plan import Candidate, _best
 
     # walker-hopper: a Hopper that falls at once (x -0.02 m, return 5) against one that
     # stands (x -0.13 m, return 1000), then one that walks (x 9.0 m)
@@ -217,7 +217,7 @@ def test_point_code_methods_search_higher_betas() -> None:
 def test_a_protocol_from_a_narrower_beta_search_is_carried_on(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import pved.experiments.protocol as protocol
+    import pved.protocol.driver as protocol
 
     monkeypatch.setattr(protocol, "run_jobs", lambda plan, **kwargs: None)
     monkeypatch.setattr(protocol, "summarize", lambda out, report: {})
@@ -293,7 +293,7 @@ def test_protocol_checkpoint_seconds_reach_every_rl_run_and_no_config(
         planned.append(plan)
         raise PvedError("planned")
 
-    monkeypatch.setattr("pved.experiments.protocol.run_jobs", planned_only)
+    monkeypatch.setattr("pved.protocol.driver.run_jobs", planned_only)
     argv = ["protocol", "--pair", "reacher", "--budget", "quick", "--out", tmp_path / "p"]
     code, _, err = run_cli(capsys, *argv, "--checkpoint-seconds", "5", "--backend", "processes")
     assert code == 2 and "planned" in err
@@ -413,7 +413,7 @@ def test_a_worker_is_at_least_as_nice_as_its_driver(driver: int, worker: int) ->
     code = (
         "import os\n"
         f"os.nice({driver} - os.nice(0))\n"
-        "from pved.experiments.runner import _init_process_worker\n"
+        "from pved.protocol.runner import _init_process_worker\n"
         "_init_process_worker()\n"
         "print(os.nice(0))\n"
     )
@@ -483,7 +483,7 @@ def test_live_view_rate_leaves_out_the_steps_of_earlier_calls(
 ) -> None:
     import io
 
-    from pved.experiments import runner
+    from pved.protocol import runner
 
     clock = iter([0.0, 10.0, 20.0])
     monkeypatch.setattr(runner.time, "monotonic", lambda: next(clock))
@@ -502,7 +502,7 @@ def test_live_view_eta_past_a_day_keeps_its_hours(
 ) -> None:
     import io
 
-    from pved.experiments import runner
+    from pved.protocol import runner
 
     clock = iter([0.0, 0.0, 100.0])
     monkeypatch.setattr(runner.time, "monotonic", lambda: next(clock))
@@ -558,7 +558,7 @@ def test_runner_leaves_a_claimed_run_to_its_batch_then_makes_it(tmp_path: Path) 
 def test_live_view_counts_the_runs_away_in_a_batch(tmp_path: Path) -> None:
     import io
 
-    from pved.experiments import runner
+    from pved.protocol import runner
 
     stream = io.StringIO()
     view = runner.LiveView(tmp_path / "status.json", stream=stream)
@@ -738,7 +738,7 @@ def test_process_runner_kills_a_worker_deaf_to_sigterm(
 ) -> None:
     # shutdown asks a worker to end (SIGTERM), and one that does not within the grace
     # period is killed: left alive it would keep the interpreter from exiting
-    from pved.experiments import runner
+    from pved.protocol import runner
 
     monkeypatch.setattr(runner, "WORKER_STOP_GRACE_S", 1.0)
     executor = runner._ProcessExecutor(1)
@@ -1365,9 +1365,9 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     # Restored or copied runs cannot be checked by their config hash (their model and bank
     # are gone), so a shaped run is taken only where its config says Eq. 10 was computed
     # as it is now (bank time base, mean action, unclipped scaled reward): else it is made again.
-    from pved.experiments.protocol_plan import finished_results
-    from pved.experiments.runner import read_job_result
     from pved.experiments.transfer_spec import eq10_config
+    from pved.protocol.plan import finished_results
+    from pved.protocol.runner import read_job_result
 
     plan = ProtocolPlan(["reacher"], ["pved", "ppo"], "smoke", tmp_path)
     jobs = plan.expand({})

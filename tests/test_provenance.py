@@ -15,8 +15,8 @@ from pved import __version__
 from pved.analysis import curves
 from pved.analysis.claims import claims_markdown, judge_claims
 from pved.analysis.compare import compare_runs, format_comparison
-from pved.experiments.protocol import summarize
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan
+from pved.protocol.driver import summarize
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan
 from pved.provenance import UNKNOWN
 from pved.runs import atomic_write_json
 from test_claims import flat, make_protocol

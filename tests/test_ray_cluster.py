@@ -24,8 +24,8 @@ from typing import Any
 import pytest
 
 from helpers import stock_reacher_spec
-from pved.experiments.protocol import summarize
-from pved.experiments.protocol_plan import ProtocolPlan, finished_results
+from pved.protocol.driver import summarize
+from pved.protocol.plan import ProtocolPlan, finished_results
 from pved.spec import SPEC_FILES_ENV, load_pair
 
 pytestmark = pytest.mark.skipif(

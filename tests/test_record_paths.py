@@ -16,9 +16,9 @@ import pytest
 
 from pved import __version__
 from pved.config import get_budget
-from pved.experiments.archive import SUMMARY_FILE, save_summary
-from pved.experiments.protocol import summarize
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, fixed_selections
+from pved.protocol.archive import SUMMARY_FILE, save_summary
+from pved.protocol.driver import summarize
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan, fixed_selections
 from pved.record_paths import record_path, resolve_record_path
 from pved.runs import atomic_write_json
 
@@ -171,7 +171,7 @@ def _absolute_paths_of(files: list[Path]) -> list[str]:
 def test_a_plan_written_with_absolute_paths_is_the_same_plan_on_restart(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import pved.experiments.protocol as protocol
+    import pved.protocol.driver as protocol
 
     monkeypatch.setattr(protocol, "run_jobs", lambda plan, **kwargs: None)
     monkeypatch.setattr(protocol, "summarize", lambda out, report: {})

@@ -230,7 +230,7 @@ def test_compare_gives_the_measures_and_the_aa_check_with_aa_runs(tmp_path: Path
 @pytest.mark.parametrize("budget", ["smoke", "quick", "paper", "paper-wide"])
 def test_the_aa_set_is_ppo_on_seeds_no_other_method_uses(tmp_path: Path, budget: str) -> None:
     from pved.config import get_budget
-    from pved.experiments.protocol_plan import ProtocolPlan
+    from pved.protocol.plan import ProtocolPlan
 
     plan = ProtocolPlan(["reacher"], ["pved", "ppo", "ppo-aa", "oracle"], budget, tmp_path)
     jobs = [j for j in plan.expand({}) if "/transfer/" in j.key]

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from helpers import run_cli
-from pved.experiments.watch import LiveView, driver_state, progress_bar
+from pved.protocol.watch import LiveView, driver_state, progress_bar
 
 JOBS = '''
 import json, sys, time
@@ -46,7 +46,7 @@ import sys
 from pathlib import Path
 
 import jobs
-from pved.experiments.runner import Job, run_jobs
+from pved.protocol.runner import Job, run_jobs
 
 out = Path(sys.argv[-1])
 

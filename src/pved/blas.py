@@ -24,7 +24,7 @@ Importing :mod:`pved` sets ``OPENBLAS_CORETYPE=Haswell``, ``MKL_CBWR=COMPATIBLE`
 ``NPY_DISABLE_CPU_FEATURES`` (numpy's groups above ``X86_V3``) where the CPU runs those
 paths and the caller has not set them. Each takes effect in every process that loads its
 library after the import (pved's CLI, its scripts, the protocol's workers:
-:data:`pved.experiments.runner.WORKER_ENV`), and in none that loaded it before.
+:data:`pved.protocol.runner.WORKER_ENV`), and in none that loaded it before.
 
 This module must not import numpy or torch at import time: :mod:`pved`'s ``__init__``
 calls :func:`pin_portable_kernels` before anything loads OpenBLAS or MKL.

@@ -85,10 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
 def protocol_status(argv: Sequence[str]) -> int:
     """``pved protocol status DIR``: parsed and answered before the main parser is built,
     which imports torch (seconds), and beside ``pved protocol``'s own options, which a
-    sub-command would clash with (:mod:`pved.experiments.watch`)."""
+    sub-command would clash with (:mod:`pved.protocol.watch`)."""
     from pved.commands import status_parser
     from pved.errors import PvedError
-    from pved.experiments.watch import status_text
+    from pved.protocol.watch import status_text
 
     try:
         print(status_text(status_parser().parse_args(argv).dir))

@@ -32,7 +32,7 @@ EARLY_FRACTION = 0.25
 """Early score: evaluation points at steps <= this fraction of the run's last step."""
 RECORD_FILE = "finished-transfer-runs.json"
 """A published protocol's committed record of its finished transfer runs, curves included
-(:data:`pved.experiments.archive.SUMMARY_FILE`; not imported: it pulls in torch)."""
+(:data:`pved.protocol.archive.SUMMARY_FILE`; not imported: it pulls in torch)."""
 CURVE_SCORES = ("early", "drop", "auc", "jumpstart", "reach")
 """The per-run scores read off a curve (``reach``: steps to a threshold)."""
 

@@ -13,7 +13,7 @@ from pved.commands import Verbs, status_parser
 
 
 def _cmd_protocol(args: argparse.Namespace) -> None:
-    from pved.experiments.protocol import run_protocol
+    from pved.protocol.driver import run_protocol
 
     summary = run_protocol(
         args.pair,
@@ -114,7 +114,7 @@ def add_protocol_status(v: Verbs) -> None:
 def _cmd_batch(args: argparse.Namespace) -> None:
     from pved.checks import check_number, check_writable
     from pved.errors import PvedError
-    from pved.experiments import batch
+    from pved.protocol import batch
 
     if args.action == "export":
         if args.max_input_mib is not None:  # a number before it is turned into bytes
@@ -226,7 +226,7 @@ def add_batch(v: Verbs) -> None:
 
 
 def _cmd_archive(args: argparse.Namespace) -> None:
-    from pved.experiments import archive
+    from pved.protocol import archive
 
     if args.action == "save":
         counts = archive.save_archive(args.protocol, args.archive)
@@ -263,7 +263,7 @@ def add_archive(v: Verbs) -> None:
 
 
 def _cmd_plot(args: argparse.Namespace) -> None:
-    from pved.experiments.protocol import plot_protocols
+    from pved.protocol.driver import plot_protocols
 
     for path in plot_protocols(args.dirs, combined=args.out):
         print(path)

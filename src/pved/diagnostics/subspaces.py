@@ -35,8 +35,8 @@ from pved.analysis.judge import load_summary
 from pved.diagnostics.pair_report import build_pair_report
 from pved.diagnostics.transferred import analyze_subspaces, bound
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import ProtocolPlan, finished_results, indexed_policy
-from pved.experiments.runner import Job
+from pved.protocol.plan import ProtocolPlan, finished_results, indexed_policy
+from pved.protocol.runner import Job
 from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes, atomic_write_json, run_path
 from pved.spec import get_preset

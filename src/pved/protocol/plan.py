@@ -48,10 +48,10 @@ import numpy as np
 
 from pved.config import PRETRAINED, TRAINED, ProtocolBudget, get_budget
 from pved.errors import PvedError
-from pved.experiments.runner import Job, read_job_result
 from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
 from pved.experiments.transfer_spec import eq10_config
 from pved.pretrained import pretrained_policy_path, shipped_seeds
+from pved.protocol.runner import Job, read_job_result
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds
 from pved.run_layout import default_dataset_path, default_model_path, transfer_run_name

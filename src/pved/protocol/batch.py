@@ -44,10 +44,10 @@ from typing import Any
 from pved import __version__
 from pved.checks import check_int, check_number, check_writable
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import ProtocolPlan, finished_results
-from pved.experiments.runner import WORKER_ENV, _environment, _one_line
 from pved.experiments.stages import transfer
 from pved.experiments.transfer_spec import transfer_spec
+from pved.protocol.plan import ProtocolPlan, finished_results
+from pved.protocol.runner import WORKER_ENV, _environment, _one_line
 from pved.runs import (
     atomic_write_json,
     claim_holder,

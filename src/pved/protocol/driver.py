@@ -1,4 +1,4 @@
-"""Running the protocol (:mod:`pved.experiments.protocol_plan`, paper IV.A) and
+"""Running the protocol (:mod:`pved.protocol.plan`, paper IV.A) and
 summing it up: ``pved protocol`` and ``pved plot``.
 
 :func:`run_protocol` writes the plan (``protocol.json``), copies another protocol's
@@ -23,8 +23,8 @@ import numpy as np
 from pved import __version__
 from pved.checks import check_int, check_writable
 from pved.errors import PvedError
-from pved.experiments.preregistration import check_gate, mark_summary, write_record
-from pved.experiments.protocol_plan import (
+from pved.models.train import shared_subspace_collapsed
+from pved.protocol.plan import (
     PLAN_FILE,
     ProtocolPlan,
     finished_results,
@@ -32,8 +32,8 @@ from pved.experiments.protocol_plan import (
     plan_entry,
     relative_plan,
 )
-from pved.experiments.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
-from pved.models.train import shared_subspace_collapsed
+from pved.protocol.preregistration import check_gate, mark_summary, write_record
+from pved.protocol.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
 from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS
@@ -126,11 +126,11 @@ def run_protocol(
     A method beyond the paper at the paper's budget starts only with a valid
     ``preregistration`` (files, one a method; their selections are the plan's) or with
     ``exploratory`` (its results are then marked so), checked before any work
-    (:func:`pved.experiments.preregistration.check_gate`).
+    (:func:`pved.protocol.preregistration.check_gate`).
 
     A directory that already holds a protocol must hold the same one (pairs, methods,
     budget): its finished runs are reused and unfinished ones resumed. ``backend``: see
-    :func:`pved.experiments.runner.run_jobs`. ``stages_from``: protocol directories (one,
+    :func:`pved.protocol.runner.run_jobs`. ``stages_from``: protocol directories (one,
     or several in order) whose finished policies, pairs, models and banks are copied in
     first (:func:`copy_stage_runs`), e.g. the ``quick`` protocol of a pair before its
     ``paper`` one; a run already copied from an earlier one is kept. ``selection_from``:

@@ -48,8 +48,8 @@ from typing import Any
 
 from pved.checks import check_writable
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import PLAN_FILE, ProtocolPlan, finished_results, relative_plan
 from pved.experiments.stages import train_model, train_policy, transfer
+from pved.protocol.plan import PLAN_FILE, ProtocolPlan, finished_results, relative_plan
 from pved.record_paths import record_path
 from pved.runs import RESTORED_FROM, atomic_write_bytes, atomic_write_json, repoint_result
 

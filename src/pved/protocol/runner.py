@@ -1,6 +1,6 @@
 """Run a growing graph of stage jobs on Ray: one CPU per job, bounded retries, a live view.
 
-The protocol (:mod:`pved.experiments.protocol_plan`) does not know all its runs in advance:
+The protocol (:mod:`pved.protocol.plan`) does not know all its runs in advance:
 which beta the evaluation runs use is decided when the tuning runs are done. So the runner
 asks a *planner* for jobs again after every finished job: ``planner.expand(results)``
 returns every job that can be defined from the results so far (the same job again each
@@ -55,7 +55,7 @@ from typing import Any, Protocol
 
 from pved.blas import kernel_env
 from pved.errors import PvedError
-from pved.experiments.watch import LiveView
+from pved.protocol.watch import LiveView
 from pved.runs import (
     RESTORED_FROM,
     claim_holder,

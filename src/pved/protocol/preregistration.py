@@ -55,7 +55,7 @@ from typing import Any
 
 from pved.config import get_budget
 from pved.errors import PvedError
-from pved.experiments.protocol_plan import ProtocolPlan
+from pved.protocol.plan import ProtocolPlan
 from pved.record_paths import record_path
 from pved.runs import atomic_write_json
 from pved.transfer.methods import REFERENCE_METHODS, get_method

@@ -1,6 +1,6 @@
 """Watching a protocol: the progress bar of its live line, and ``pved protocol status DIR``.
 
-The driver of ``pved protocol`` (:class:`pved.experiments.runner.LiveView`) rewrites
+The driver of ``pved protocol`` (:class:`pved.protocol.runner.LiveView`) rewrites
 ``status.json`` in the protocol's directory every :data:`STATUS_EVERY_S` seconds: runs
 done, in flight (each with its env steps), failed and waiting, env steps, the rate of this
 call, the ETA, and which process on which host writes it. :func:`status_text` reads that
@@ -128,7 +128,7 @@ class LiveView:
     env steps per second and ETA: one line rewritten in place on a terminal, a line every
     ``every_s`` seconds otherwise; and, every few seconds, ``status.json`` in the output
     directory with the runs in flight and the failures, which ``pved protocol status``
-    reads (:mod:`pved.experiments.watch`).
+    reads (:mod:`pved.protocol.watch`).
 
     The rate counts only the steps trained by this call: a restarted protocol finds
     hundreds of finished runs (and checkpoints) within minutes, and counting those as
