@@ -9,6 +9,9 @@ inside it as a base64 ``data:`` URI, so it can be mailed or attached to an issue
 Inputs are recognised by what they contain (see :func:`build_pair_report`); an input of
 another pair or one that is not a pved output raises :class:`PvedError` naming the file,
 before anything is written.
+
+One module past 600 lines on purpose: it makes one HTML page, each section a short
+reader of one verb's output kept beside the others so that the page stays one document.
 """
 
 from __future__ import annotations

@@ -25,6 +25,10 @@ For Humanoid → Ant (Fig. 7 and Fig. 8 of the paper) two additions:
   (:func:`x_split_by_group`, :func:`write_x_split`).
 
 The rollouts come from :mod:`pved.diagnostics.rollouts`.
+
+One module past 600 lines on purpose: the embeddings, the two numbers and the figures of
+Figs. 4–8 are one analysis of one set of rollouts, each figure drawn from the numbers
+above it.
 """
 
 from __future__ import annotations

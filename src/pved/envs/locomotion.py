@@ -87,6 +87,10 @@ reward is the sum of the terms of the reward mode; the others are reported as
 ``info`` also holds ``x_position`` (torso x, m), ``x_velocity`` (m/s, steps only),
 ``torso_height`` (h, m) and ``local_slope_deg`` (phi(x_torso), deg), and on Slope the task
 parameter ``slope_deg`` (``task_param_keys``; Curve has none).
+
+One module past 600 lines on purpose: both locomotion pairs share one model builder, one
+way of laying terrain and one batched env, differing only in their tables of agents and
+terrains; much of the length is this docstring's physics.
 """
 
 from __future__ import annotations

@@ -9,6 +9,10 @@ done, or replaced by the user's own data:
     train_model   -> runs/<pair>/model/<model>/seed<k>/model.pt
     build_bank    -> runs/<pair>/bank/<Agent>-<Task>/seed<k>/bank.npz
     transfer      -> runs/<pair>/transfer/<method>/seed<k>/{policy.pt,result.json}
+
+One module past 600 lines on purpose: it holds the five stages and nothing else, each a
+short function over its run directory that every CLI verb and the protocol look up here;
+their helpers already live beside it (transfer_spec, sources, pved.run_layout).
 """
 
 from __future__ import annotations

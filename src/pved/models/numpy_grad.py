@@ -20,6 +20,10 @@ Notation as in :mod:`pved.models.pved`. Shapes: B rows; W_S, W_T the widths the 
 see; C = ``shared_dim``, Y = ``individual_dim``, H = ``hidden``. Names ending ``_S`` are
 inferred from x_S (q_φS(c_T, y_T | x_S)), ``_T`` from x_T. A torch ``nn.Linear`` weight
 is (out, in) and computes ``x @ W.T + b``; the numpy code uses the same views.
+
+One module past 600 lines on purpose: it is the forward and backward pass of one
+objective (Eq. 9, and Gupta's), whose caches pass from a layer's forward to its
+backward; split, a layer's two halves would live apart.
 """
 
 from __future__ import annotations

@@ -32,6 +32,10 @@ on the budget's steps per run, so another protocol's may be copied in first
 (:func:`copy_stage_runs`, ``--stages-from``). ``protocol.json`` records the plan;
 :func:`summarize` rebuilds the selection, ``summary.json``/``summary.md`` and the curves
 from the run files alone (``pved plot``).
+
+One module past 600 lines on purpose: the plan is one job graph, a pure function of
+finished results (tuning, selection and evaluation are its three steps), and its
+selection helpers serve it alone.
 """
 
 from __future__ import annotations

@@ -33,6 +33,9 @@ redo it.
 A job whose run directory an exported batch has claimed (:func:`pved.runs.write_claim`)
 is not started while the claim lasts; the runner waits for it rather than ending, and a
 run imported meanwhile is then found done.
+
+One module past 600 lines on purpose: one scheduler over two interchangeable executors
+(Ray, local processes) that share its bookkeeping of jobs, retries and the report.
 """
 
 from __future__ import annotations

@@ -16,6 +16,10 @@ Read top to bottom:
 Conventions. T = ``steps_per_env``, N = ``num_envs``, B = a minibatch, A = action dim,
 O = observation dim. Episodes that end by truncation (time limit) are bootstrapped with
 V of ``info["final_obs"]``; episodes that terminate are not.
+
+One module past 600 lines on purpose: PPO's loop is one idea, its config, trainer state,
+checkpoints and resume sharing one set of buffers and one order of operations; split,
+each part would have to know the others' internals.
 """
 
 from __future__ import annotations
