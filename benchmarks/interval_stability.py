@@ -4,7 +4,7 @@ method's standing against PPO, the Eq. 10 reruns), made anew under ``--seeds`` r
 seeds at each ``--reps``; prints, per resample count, how many verdicts there are and how
 many change between seeds, then each one that does (its verdicts and how many seeds gave
 each), and the reacher ``quick`` ``pved-align`` standing, the one that once held "level"
-in 15 of 20 seeds. :data:`pved.analysis.curves.REPS` is chosen so that none changes.
+in 15 of 20 seeds. :data:`pved.analysis.bootstrap.REPS` is chosen so that none changes.
 
     nice -n 19 .venv/bin/python benchmarks/interval_stability.py --reps 20000 200000 [--seeds 20]
 

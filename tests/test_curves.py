@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import pved.analysis.curves as curves
+import pved.analysis.bootstrap as bootstrap
 from pved.analysis.curves import (
     REPS,
     Curve,
@@ -332,7 +332,7 @@ def test_a_methods_interval_is_the_same_whatever_it_is_compared_with() -> None:
     ppo = np.array([1.0, 0.0, 0.0, 0.036, 0.0, 0.994, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0])
     shaped, seeds, sources = crossed([0.0, 0.2, 0.9], [0.0, 0.1, 0.0, 0.0, 0.0])
     alone = bootstrap_mean(ppo, seeds=list(range(15)))
-    curves._CACHE.clear()  # drawn again, not read back
+    bootstrap._CACHE.clear()  # drawn again, not read back
     assert alone == bootstrap_mean(ppo, seeds=list(range(15)))  # a rerun: the same bounds
     assert (alone["runs"], alone["seeds"], alone["sources"]) == (15, 15, 0)
     first = bootstrap_difference(ppo, shaped, seeds_a=list(range(15)), seeds_b=seeds)

@@ -8,12 +8,12 @@ Per run, as in :mod:`pved.analysis.judge`: the final score (the pair's metric in
 points at steps <= 25% of its last) and the drop (its best evaluation point minus its
 last). For each, the difference of the two groups' means, A − B, with its 95% percentile
 bootstrap interval and the bootstrap p-value of 0, from the bootstrap ``pved claims`` uses
-(:func:`pved.analysis.curves.bootstrap_difference`, the project's resamples and seed): two levels,
-the source policies (a run's source bank, ``bank`` in its config; one draw for both
+(:func:`pved.analysis.bootstrap.bootstrap_difference`, the project's resamples and seed):
+two levels, the source policies (a run's source bank, ``bank`` in its config; one draw for both
 groups where they ran with the same banks) and the PPO seeds (each group its own draw),
 every run of a drawn (source, seed) cell taken; a group without banks (plain PPO, the
 oracle) draws its seeds only, the runs of one seed together. Each group's own mean and
-interval are the same bootstrap of its runs alone (:func:`pved.analysis.curves.bootstrap_mean`).
+interval are the same bootstrap of its runs alone (:func:`pved.analysis.bootstrap.bootstrap_mean`).
 And the steps each group's
 mean curve takes to reach B's final mean (:func:`pved.analysis.curves.steps_to_reach`),
 the paper's "steps to reach the baseline's final performance" with B as the baseline.
@@ -37,14 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import (
-    REPS,
-    SEED,
-    Curve,
-    bootstrap_difference,
-    bootstrap_mean,
-    steps_to_baseline_finals,
-)
+from pved.analysis.bootstrap import REPS, SEED, bootstrap_difference, bootstrap_mean
+from pved.analysis.curves import Curve, steps_to_baseline_finals
 from pved.analysis.judge import drop, early_score, eval_curve
 from pved.analysis.run_curves import curve_score, steps_to_threshold
 from pved.analysis.transfer_measures import INSIDE_AA, MEASURE_NAMES, NO_AA, aa_noise

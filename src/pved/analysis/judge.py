@@ -4,14 +4,14 @@ pair with three outcomes, ``holds``, ``does not hold`` or ``undecided`` (the run
 tell, or there are none).
 
 Intervals: 95% percentile two-level bootstrap of the difference of two methods' mean
-scores (:func:`pved.analysis.curves.bootstrap_difference`, :data:`REPS` resamples, seed
+scores (:func:`pved.analysis.bootstrap.bootstrap_difference`, :data:`REPS` resamples, seed
 :data:`SEED`). Each resample draws the source policies with replacement (one draw for
 both methods where both ran with the same source policies) and, independently, each
 method's PPO seeds with replacement, and takes every run of each drawn (source, seed)
 cell; plain PPO and the oracle have no source policy and draw their seeds only. The
 intervals therefore carry the variation between source policies as well as between seeds.
 A method's own interval, wherever a part prints it, is the same bootstrap of its mean
-alone (:meth:`Judge.mean`, :func:`pved.analysis.curves.bootstrap_mean`), so one method's
+alone (:meth:`Judge.mean`, :func:`pved.analysis.bootstrap.bootstrap_mean`), so one method's
 runs carry one interval whatever they are compared with.
 
 Tests (A − B: the difference of the two methods' mean scores; :class:`Judge`):
@@ -60,9 +60,9 @@ from typing import Any
 
 import numpy as np
 
-from pved.analysis.curves import REPS as REPS
-from pved.analysis.curves import SEED as SEED
-from pved.analysis.curves import bootstrap_difference, bootstrap_mean
+from pved.analysis.bootstrap import REPS as REPS
+from pved.analysis.bootstrap import SEED as SEED
+from pved.analysis.bootstrap import bootstrap_difference, bootstrap_mean
 from pved.analysis.run_curves import EARLY_FRACTION as EARLY_FRACTION
 from pved.analysis.run_curves import curve_score, run_curve, steps_to_threshold
 from pved.analysis.run_curves import drop as drop
@@ -381,7 +381,7 @@ class Judge:
 
     def mean(self, pair: str, method: str, score: str = "final") -> dict[str, Any] | str:
         """``method``'s mean ``score`` on ``pair`` with its own 95% interval (the two-level
-        bootstrap of its runs alone, :func:`pved.analysis.curves.bootstrap_mean`): ``{"runs",
+        bootstrap of its runs alone, :func:`pved.analysis.bootstrap.bootstrap_mean`): ``{"runs",
         "seeds", "sources", "mean", "mean_ci"}``, or the reason there is none."""
         key = (pair, method, score)
         if key not in self._means:

@@ -10,10 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from pved.analysis.bootstrap import REPS, SEED
 from pved.analysis.curves import (
     ONE_LEVEL_REPS,
-    REPS,
-    SEED,
     Curve,
     bootstrap_summary,
     load_curve,

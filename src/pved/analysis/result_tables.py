@@ -1,8 +1,8 @@
 """The tables ``pved publish`` writes into the pages (:data:`TABLES`), each made from the
 committed records under docs/protocol/ by :class:`Records`: one reading of the records and
 one judge over them, with the project's one interval method, the two-level bootstrap over
-source policies and PPO seeds (:func:`pved.analysis.curves.bootstrap_mean` for one method,
-:func:`pved.analysis.curves.bootstrap_difference` for two, judged as ``pved claims`` and
+source policies and PPO seeds (:func:`pved.analysis.bootstrap.bootstrap_mean` for one method,
+:func:`pved.analysis.bootstrap.bootstrap_difference` for two, judged as ``pved claims`` and
 ``pved scoreboard`` judge, :mod:`pved.analysis.judge`). The one exception, the IQM's
 interval, is the record's (rliable, over runs) and says "one-level" in its header. Every
 verdict a table prints is noted (:attr:`Records.verdicts`), so that
@@ -17,9 +17,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from pved.analysis.bootstrap import REPS, SEED
 from pved.analysis.claims import CLAIMS as PAPER_CLAIMS
 from pved.analysis.claims import combine, family_wise
-from pved.analysis.curves import REPS, SEED
 from pved.analysis.judge import (
     FOUR,
     HOLDS,
