@@ -73,14 +73,14 @@ def pinned_fingerprint() -> str | None:
     return _PINNED_AT_IMPORT
 
 
-def _read_git_dirty() -> bool | None:
-    """Whether the package's source differs from HEAD: a tracked file changed or a new
-    file not ignored (None outside a git checkout, or without git)."""
-    here = Path(__file__).resolve().parent
+def git_output(*args: str) -> str | None:
+    """What ``git ARGS`` prints in the checkout this package lies in, stripped (None
+    outside a git checkout, without git, or when git fails): one place for the commit
+    (:mod:`pved.runs`) and the dirty flag below."""
     try:
         out = subprocess.run(
-            ["git", "status", "--porcelain", "--", "."],
-            cwd=here,
+            ["git", *args],
+            cwd=Path(__file__).resolve().parent,
             capture_output=True,
             text=True,
             timeout=5,
@@ -88,7 +88,14 @@ def _read_git_dirty() -> bool | None:
         )
     except (OSError, subprocess.TimeoutExpired):
         return None
-    return bool(out.stdout.strip()) if out.returncode == 0 else None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def _read_git_dirty() -> bool | None:
+    """Whether the package's source differs from HEAD: a tracked file changed or a new
+    file not ignored (None outside a git checkout, or without git)."""
+    status = git_output("status", "--porcelain", "--", ".")
+    return None if status is None else bool(status)
 
 
 _DIRTY_AT_IMPORT = _read_git_dirty()

@@ -22,7 +22,6 @@ import hashlib
 import json
 import math
 import os
-import subprocess
 import tempfile
 import time
 from collections.abc import Mapping
@@ -34,7 +33,7 @@ import torch
 from pved import __version__
 from pved.blas import loaded_kernel, loaded_mkl_branch, loaded_numpy_simd
 from pved.errors import PvedError
-from pved.provenance import record_fields
+from pved.provenance import git_output, record_fields
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -114,22 +113,9 @@ def state_digest(state: Any) -> str:
 
 def _read_git_commit() -> str | None:
     """HEAD of the git checkout this file lies in (None outside one, or without git)."""
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=False,
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return out.stdout.strip() or None if out.returncode == 0 else None
+    return git_output("rev-parse", "HEAD") or None
 
 
-# Read once, when the module loads: a long-lived process (a protocol's pool worker) runs
-# the code it imported, whatever HEAD says by the time it starts its tenth run.
 _COMMIT_AT_IMPORT = _read_git_commit()
 
 
