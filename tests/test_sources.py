@@ -338,7 +338,12 @@ def test_a_spec_pairs_own_agents_go_through_export_minari_bank_and_pairs(
     direct = load_bank(Path(cli("build-bank", "--pair", spec, "--runs", runs / "b",
                                 "--episodes", "3", "--seed", "4")))  # fmt: skip
     # the spec's target-task env arguments and robot state, bit for bit the direct rollouts
-    np.testing.assert_array_equal(recorded.x, direct.x)
+    # as far as the recorded episodes go: Reacher-v5's own 50 steps, where build-bank's own
+    # rollouts run on to cover the target's 100-step episode (issue 64; the steps past a
+    # recorded episode's end are compared with nothing, transfer.source_bank)
+    short = recorded.x.shape[1]
+    assert (short, direct.x.shape[1]) == (50, 100)
+    np.testing.assert_array_equal(recorded.x, direct.x[:, :short])
     assert recorded.header["robot_state_indices"] == [0, 1, 2, 3, 6, 7]
     pairs = load_dataset(Path(cli("collect-pairs", "--pair", spec, "--runs", runs / "a",
                                   "--source-dataset", "stock-reach-v0")))  # fmt: skip
