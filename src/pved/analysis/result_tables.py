@@ -7,7 +7,8 @@ source policies and PPO seeds (:func:`pved.analysis.bootstrap.bootstrap_mean` fo
 interval, is the record's (rliable, over runs) and says "one-level" in its header. Every
 verdict a table prints is noted (:attr:`Records.verdicts`), so that
 :func:`pved.analysis.publish.verdict_flips` can ask whether any depends on the
-resampling's seed.
+resampling's seed. One idea, however long: every table the pages print, each a short
+function of the records, so that a page and its records cannot disagree.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pved.analysis.judge import (
     load_pairs,
 )
 from pved.analysis.scoreboard import AHEAD, load_merged, pair_row
+from pved.analysis.transfer_measures import INSIDE_AA, method_measures
 from pved.errors import PvedError
 
 RECORDS = Path("docs") / "protocol"
@@ -94,6 +96,9 @@ SCREENS = (
     ("humanoid-ant", "pved-align", "humanoid-ant-quick-align"),
 )
 """Issue 51's screens at the ``quick`` budget: (pair, method, its screen's directory)."""
+SCREENS_64 = (("reacher", "pved-prior", "reacher-screen"),)
+"""Issue 64's screens at the ``screen`` budget (seeds no other budget runs): (pair,
+method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
 PAPER_ORDER = ("walker-hopper", "jaco-fetch", "reacher", "humanoid-ant")
 """The main table's rows: where transfer works first."""
 EQ10 = (("reacher", "quick"), ("humanoid-ant", "quick"), ("humanoid-ant", "paper"))
@@ -513,6 +518,41 @@ def screens_quick(rec: Records, page: str) -> str:
     return _table([*header, "steps to PPO's final"], rows)
 
 
+def screens_64(rec: Records, page: str) -> str:
+    """Issue 64's screens: each candidate against PPO on its pair by the final score and
+    the normalised area under the learning curve (Taylor & Stone's measures,
+    :mod:`pved.analysis.transfer_measures`), each beside the pair's A/A gap (ppo-aa − ppo)."""
+    rows = []
+    for pair, method, directory in SCREENS_64:
+        pairs, judge = rec.judge(directory)
+        cells = method_measures({pair: pairs[pair]}, method, judge)["pairs"][pair]
+        line = [f"{pair} ({_unit(pairs[pair].metric)})", f"`{method}`"]
+        for measure in ("final", "auc"):
+            c = cells[measure]
+            if "reason" in c:
+                raise PvedError(f"{directory}: {measure}: {c['reason']}")
+            aa = c["aa"]
+            diff = f"{_s(c['value'])} {_ci(c['ci'], _s)}"
+            ahead = c["ci"][0] > 0 and not c["inside_aa"]
+            verdict = rec.note(
+                f"screen: {method} against ppo on {pair} ({measure})",
+                AHEAD if ahead else ("behind" if c["ci"][1] < 0 else "level"),
+            )
+            flag = f"; {INSIDE_AA}" if c["inside_aa"] else ""
+            aa_text = aa if isinstance(aa, str) else f"{_s(aa['value'])} {_ci(aa['ci'], _s)}"
+            line += [
+                f"{_n(c['method_mean'])} vs {_n(c['ppo_mean'])}",
+                f"**{diff}**" if ahead else diff,
+                f"{aa_text}{flag}",
+                verdict,
+            ]
+        rows.append(line)
+    header = ["pair (metric)", "method"]
+    for measure in ("final", "area under the curve"):
+        header += [f"{measure}: method vs PPO", "− PPO [95% CI]", "A/A gap", "standing"]
+    return _table(header, rows)
+
+
 def pair_verdicts(rec: Records, page: str, pair: str) -> str:
     """The parts of the paper's claims on one pair, at ``quick`` and ``paper``."""
     budgets = ("quick", "paper")
@@ -563,6 +603,7 @@ TABLES: dict[str, Callable[..., str]] = {
     "eq10-reruns": eq10_reruns,
     "align-paper": align_paper,
     "screens-quick": screens_quick,
+    "screens-64": screens_64,
     "verdicts": pair_verdicts,
     "finals": finals,
 }
