@@ -96,7 +96,10 @@ SCREENS = (
     ("humanoid-ant", "pved-align", "humanoid-ant-quick-align"),
 )
 """Issue 51's screens at the ``quick`` budget: (pair, method, its screen's directory)."""
-SCREENS_64 = (("reacher", "pved-prior", "reacher-screen"),)
+SCREENS_64 = (
+    ("reacher", "pved-prior", "reacher-screen"),
+    ("reacher", "pved-align", "reacher-screen-align"),
+)
 """Issue 64's screens at the ``screen`` budget (seeds no other budget runs): (pair,
 method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
 PAPER_ORDER = ("walker-hopper", "jaco-fetch", "reacher", "humanoid-ant")
