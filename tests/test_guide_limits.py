@@ -22,11 +22,11 @@ from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
 from pved.models import PVED
 from pved.models.base import SharedRep
+from pved.pair import resolve_pair
 from pved.rl.guide import GATE_EPISODES, GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_MASK, RewardGate
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
 from pved.run_layout import model_dataset_path
 from pved.runs import Run, file_digest
-from pved.spec import get_preset
 from pved.transfer.align_guide import D_GATE_FACTOR, D_GATE_QUANTILE, matched_distance_limit
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank
@@ -268,16 +268,16 @@ def test_the_d_gate_s_limit_is_read_on_the_model_s_own_pairs(
     with pytest.raises(PvedError, match="matched pairs"):
         matched_distance_limit(model, x_s[:0], x_t[:0])
     # the transfer stage finds the pairs by the digest the model names
-    preset = get_preset("reacher")
+    pair = resolve_pair("reacher", tmp_path)
     pairs = tmp_path / "reacher/pairs/time/seed3/pairs.npz"
     pairs.parent.mkdir(parents=True)
     pairs.write_bytes(b"pairs")
     model.metadata["dataset"] = file_digest(pairs)
-    assert model_dataset_path(preset, model, tmp_path) == pairs
+    assert model_dataset_path(pair, model) == pairs
     model.metadata["dataset"] = "0" * 16
     with pytest.raises(PvedError, match="training pairs"):
-        model_dataset_path(preset, model, tmp_path)
+        model_dataset_path(pair, model)
     del model.metadata["dataset"]
     with pytest.raises(PvedError, match="names no training dataset"):
-        model_dataset_path(preset, model, tmp_path)
+        model_dataset_path(pair, model)
     assert math.isfinite(limit)

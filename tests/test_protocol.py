@@ -1373,7 +1373,10 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     jobs = plan.expand({})
     shaped = next(j for j in jobs if j.key.startswith("reacher/transfer/pved-"))
     ppo = next(j for j in jobs if "/transfer/ppo/" in j.key)
-    assert shaped.required_config == eq10_config("reacher") and not ppo.required_config
+    assert (
+        shaped.required_config == eq10_config(get_preset("reacher").pairing.align)
+        and not ppo.required_config
+    )
     old_config = {"stage": "transfer", "method": "pved", "beta": 0.1}
     for job, config in ((shaped, old_config), (ppo, {"stage": "transfer", "method": "ppo"})):
         assert job.run_dir is not None
@@ -1386,7 +1389,7 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     assert ppo.key in finished and shaped.key not in finished
     # the same run with today's entries counts
     assert shaped.run_dir is not None
-    new_config = {**old_config, **eq10_config("reacher")}
+    new_config = {**old_config, **eq10_config(get_preset("reacher").pairing.align)}
     (shaped.run_dir / "config.json").write_text(json.dumps({"config": new_config}))
     assert read_job_result(shaped.run_dir, shaped.required_config) == _fake(0.5)
     assert shaped.key in finished_results(plan)

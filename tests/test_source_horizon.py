@@ -19,10 +19,10 @@ from pved.envs import make_batched
 from pved.errors import PvedError
 from pved.experiments import stages
 from pved.models import PVED
+from pved.pair import resolve_pair
 from pved.rl.guide import GUIDE_CONTEXT, GUIDE_MASK
-from pved.run_layout import bank_rollout_steps, env_of
+from pved.run_layout import bank_rollout_steps
 from pved.runs import Run
-from pved.spec import get_preset
 from pved.transfer.shaping import SOURCE_ENDED, LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import (
     SourceBank,
@@ -85,9 +85,7 @@ def test_humanoid_ant_s_bank_runs_as_long_as_an_ant_episode(
     assert limits == [3334]
     # the other pairs' agents share a control period and a horizon: their banks as before
     for pair in ("reacher", "jaco-fetch", "walker-hopper"):
-        preset = get_preset(pair)
-        name, kwargs = env_of(preset, preset.source_agent, preset.target_task)
-        assert bank_rollout_steps(preset, name, kwargs) is None, pair
+        assert bank_rollout_steps(resolve_pair(pair)) is None, pair
 
 
 @pytest.mark.parametrize("env_id", [TARGET_PUSH, "Pendulum-v1"])

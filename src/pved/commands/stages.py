@@ -8,8 +8,20 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pved.commands import Verbs, print_json
+
+if TYPE_CHECKING:
+    from pved.pair import Pair
+
+
+def _pair(args: argparse.Namespace) -> Pair:
+    """The door: ``--pair`` (a name or a spec file) resolved once, its runs under
+    ``--runs``; the stage is handed this object and looks nothing up again."""
+    from pved.pair import resolve_pair
+
+    return resolve_pair(args.pair, args.runs)
 
 
 def _cmd_list(args: argparse.Namespace) -> None:
@@ -78,14 +90,13 @@ def _cmd_collect_pairs(args: argparse.Namespace) -> None:
 
     print(
         collect_pairs(
-            args.pair,
+            _pair(args),
             source_policy=args.source_policy,
             target_policy=args.target_policy,
             episodes=args.episodes,
             seed=args.seed,
             align=args.align,
             task=args.task,
-            runs_root=args.runs,
             source_dataset=args.source_dataset,
         )
     )
@@ -136,12 +147,11 @@ def _cmd_train_model(args: argparse.Namespace) -> None:
 
     print(
         train_model(
-            args.pair,
+            _pair(args),
             args.model,
             dataset=args.dataset,
             seed=args.seed,
             epochs=args.epochs,
-            runs_root=args.runs,
         )
     )
 
@@ -167,11 +177,10 @@ def _cmd_build_bank(args: argparse.Namespace) -> None:
 
     print(
         build_bank(
-            args.pair,
+            _pair(args),
             source_policy=args.source_policy,
             episodes=args.episodes,
             seed=args.seed,
-            runs_root=args.runs,
             source_dataset=args.source_dataset,
         )
     )
@@ -203,13 +212,12 @@ def _cmd_export_minari(args: argparse.Namespace) -> None:
 
     print(
         export_source_dataset(
-            args.pair,
+            _pair(args),
             args.dataset_id,
             task=args.task,
             source_policy=args.source_policy,
             episodes=args.episodes,
             seed=args.seed,
-            runs_root=args.runs,
         )
     )
 
@@ -238,7 +246,7 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
 
     print_json(
         transfer(
-            args.pair,
+            _pair(args),
             args.model,
             seed=args.seed,
             model_path=args.model_path,
@@ -248,7 +256,6 @@ def _cmd_transfer(args: argparse.Namespace) -> None:
             eval_every=args.eval_every,
             eval_episodes=args.eval_episodes,
             final_eval_episodes=args.final_eval_episodes,
-            runs_root=args.runs,
             shaping_start=args.shaping_start,
             shaping_form=args.shaping_form,
             shaping_action=args.shaping_action,

@@ -66,9 +66,9 @@ from pved.models.base import SharedSpaceModel
 from pved.models.distributions import kl_standard_normal
 from pved.models.registry import load_model, save_model
 from pved.models.train import train_model
+from pved.pair import resolve_pair
 from pved.pairing.align import PHASE_WINDOW, first_component, gait_phase, phase_indices
 from pved.pairing.dataset import PairedDataset, load_dataset
-from pved.run_layout import default_dataset_path, default_model_path
 from pved.runs import atomic_write_json, run_path
 from pved.spec import get_preset
 from pved.transfer.source_bank import load_bank
@@ -320,7 +320,8 @@ def protocol_pairing_signal(
     result: dict[str, Any] = {"rows": rows, "code_rows": code_rows, "pairs": {}}
     pairing_rows, code_table = [], []
     for pair, entry in summary["pairs"].items():
-        dataset_path = default_dataset_path(pair, runs_root)
+        layout = resolve_pair(pair, runs_root)
+        dataset_path = layout.runs.dataset(layout.preset.pairing.align)
         if not dataset_path.is_file():
             raise PvedError(f"{dataset_path}: the pair's paired dataset is not in this directory")
         dataset = load_dataset(dataset_path)
@@ -336,7 +337,7 @@ def protocol_pairing_signal(
             init = state.get("init")
             if init is None:  # plain PPO and the oracle have no model
                 continue
-            path = default_model_path(pair, method, runs_root, seed=init)
+            path = layout.runs.model(method, init)
             if not path.is_file():
                 raise PvedError(f"{path}: the selected model is not in this directory")
             models[f"{method} (init {init})"] = load_model(path).eval()

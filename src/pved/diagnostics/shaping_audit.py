@@ -349,6 +349,7 @@ def audit_pair(
     not), written to ``out`` (JSON, atomically) when given."""
     from pved.envs import env_id
     from pved.models import load_model
+    from pved.pair import resolve_pair
     from pved.rl.policy import load_policy
     from pved.run_layout import check_bank_for, check_model_for
     from pved.runs import atomic_write_json
@@ -371,8 +372,9 @@ def audit_pair(
     name = env_id(preset.target_agent, preset.target_task)
     probe = make_batched(name, 1)
     dt_target = getattr(probe, "dt", None)
-    check_model_for(preset, model, model_path, target_robot_state=probe.robot_state_indices)
-    check_bank_for(preset, bank, bank_path, model)
+    resolved = resolve_pair(preset)
+    check_model_for(resolved, model, model_path, target_robot_state=probe.robot_state_indices)
+    check_bank_for(resolved, bank, bank_path, model)
     probe.close()
     result = {
         "pair": pair,

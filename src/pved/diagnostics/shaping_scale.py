@@ -68,8 +68,9 @@ from pved.diagnostics.shaping_audit import distance_stats, matched_and_shuffled
 from pved.errors import PvedError
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
+from pved.pair import resolve_pair
 from pved.pairing.dataset import load_dataset
-from pved.run_layout import default_dataset_path, default_model_path, transfer_run_name
+from pved.run_layout import transfer_run_name
 from pved.runs import atomic_write_json
 
 
@@ -285,14 +286,15 @@ def protocol_shaping_scale(
         "|---|---|---|---|---|---|---|---|",
     ]
     for pair, entry in summary["pairs"].items():
-        dataset = default_dataset_path(pair, runs_root)
+        layout = resolve_pair(pair, runs_root)
+        dataset = layout.runs.dataset(layout.preset.pairing.align)
         if not dataset.is_file():
             raise PvedError(f"{dataset}: the pair's paired dataset is not in this directory")
         for method, state in entry["methods"].items():
             init = state.get("init")
             if init is None:  # plain PPO and the oracle have no model
                 continue
-            model = default_model_path(pair, method, runs_root, seed=init)
+            model = layout.runs.model(method, init)
             if not model.is_file():
                 raise PvedError(f"{model}: the selected model is not in this directory")
             scale = shaping_scale(model, dataset, rows, seed)

@@ -29,10 +29,10 @@ from pved.diagnostics.tsne import (
 from pved.envs.terrain import CURVE_RAMP_LENGTH
 from pved.models.base import SharedSpaceModel
 from pved.models.registry import load_model
+from pved.pair import resolve_pair
 from pved.rl.policy import Policy, load_policy
 from pved.run_layout import check_model_for, policy_path
 from pved.runs import atomic_write_json, run_file
-from pved.spec import get_preset
 from pved.transfer.source_bank import bank_time_scale, env_dt
 
 
@@ -53,10 +53,11 @@ def analysis_inputs(
 ) -> AnalysisInputs:
     """The model at ``model_path`` (refused if made for another pair), the target policy,
     and the source policy (the shipped one for the pair's target task when None)."""
-    preset = get_preset(pair)
+    resolved = resolve_pair(pair)
+    preset = resolved.preset
     model = load_model(run_file(model_path, "model.pt"))
-    check_model_for(preset, model, model_path)
-    src = load_policy(policy_path(preset, preset.source_agent, preset.target_task, source_policy))
+    check_model_for(resolved, model, model_path)
+    src = load_policy(policy_path(resolved, preset.source_agent, preset.target_task, source_policy))
     tgt = load_policy(run_file(target_policy, "policy.pt"))
     return AnalysisInputs(
         preset,

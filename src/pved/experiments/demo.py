@@ -24,8 +24,8 @@ from pved.checks import check_int, check_number, check_seed, check_writable
 from pved.config import EVALUATION_SEEDS
 from pved.errors import OptionError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, transfer
+from pved.pair import resolve_pair
 from pved.runs import atomic_write_bytes, atomic_write_json, last_logged_step, run_path
-from pved.spec import get_preset
 from pved.transfer.methods import NO_TRANSFER, get_method
 
 
@@ -51,7 +51,7 @@ class DemoConfig:
     def __post_init__(self) -> None:
         # checked before any stage: a budget refused at transfer came after the pairs,
         # the model and the bank had been made
-        get_preset(self.pair)  # an unknown pair fails here
+        resolve_pair(self.pair)  # an unknown pair fails here
         counts = (
             "pair_episodes",
             "model_epochs",
@@ -171,17 +171,16 @@ def run_demo(
 ) -> Path:
     """Run the whole Reacher pipeline on the demo budget; return the report folder."""
     cfg = cfg or DemoConfig()
-    preset = get_preset(cfg.pair)
+    pair = resolve_pair(cfg.pair, runs_root)
+    preset = pair.preset
     check_writable("--runs", runs_root)
     check_writable("--out", report_dir)
     start = time.time()
-    dataset = collect_pairs(cfg.pair, episodes=cfg.pair_episodes, runs_root=runs_root)
+    dataset = collect_pairs(pair, episodes=cfg.pair_episodes)
     for model in dict.fromkeys(get_method(m).model for m in cfg.methods):
         if model is not None:  # each model the methods shape with, once
-            train_model(
-                cfg.pair, model, dataset=dataset, epochs=cfg.model_epochs, runs_root=runs_root
-            )
-    build_bank(cfg.pair, episodes=cfg.bank_episodes, runs_root=runs_root)
+            train_model(pair, model, dataset=dataset, epochs=cfg.model_epochs)
+    build_bank(pair, episodes=cfg.bank_episodes)
     run_transfers(cfg, runs_root)
     out = transfer_report(
         cfg.pair,

@@ -17,9 +17,9 @@ import numpy as np
 from pved.config import PRETRAINED, TRAINED, PairPreset
 from pved.envs import BatchedEnv, make_batched
 from pved.errors import PvedError
+from pved.pair import Pair, resolve_pair
 from pved.rl.external import load_policy_file
-from pved.run_layout import DEFAULT_RUNS, env_of, policy_path
-from pved.spec import get_preset
+from pved.run_layout import policy_path
 
 #: ``evaluate_policy``'s results a metric can name besides ``<info key>_mean``.
 METRICS = ("return_mean", "length_mean", "completion_rate", "success_rate")
@@ -31,8 +31,9 @@ def _field(preset: PairPreset, agent: str, task: str) -> str:
     return f"{side}.{role}"
 
 
-def _make(preset: PairPreset, agent: str, task: str) -> BatchedEnv:
-    name, kwargs = env_of(preset, agent, task)
+def _make(pair: Pair, agent: str, task: str) -> BatchedEnv:
+    name, kwargs = pair.env(agent, task)
+    preset = pair.preset
     field = _field(preset, agent, task)
     try:
         return make_batched(name, 1, **kwargs)
@@ -59,21 +60,23 @@ def _check_keys(
     return info
 
 
-def check_pair(pair: str | Path, runs_root: Path = DEFAULT_RUNS) -> str:
+def check_pair(pair: str | Path | Pair, runs_root: Path | None = None) -> str:
     """Check the spec ``pair`` against its envs and policies; returns the summary text
     ``pved pair check`` prints. Raises :class:`PvedError` on the first mistake."""
-    preset = get_preset(str(pair))
+    pair = resolve_pair(pair, runs_root)
+    preset = pair.preset
     agents = (preset.source_agent, preset.target_agent)
     tasks = (preset.training_task, preset.target_task)
-    envs = {(a, t): _make(preset, a, t) for a in agents for t in tasks}
+    envs = {(a, t): _make(pair, a, t) for a in agents for t in tasks}
     try:
-        return _check(preset, envs, runs_root)
+        return _check(pair, envs)
     finally:
         for env in envs.values():
             env.close()
 
 
-def _check(preset: PairPreset, envs: dict[tuple[str, str], BatchedEnv], runs_root: Path) -> str:
+def _check(pair: Pair, envs: dict[tuple[str, str], BatchedEnv]) -> str:
+    preset = pair.preset
     src, tgt = preset.source_agent, preset.target_agent
     train, target = preset.training_task, preset.target_task
     lines = [f"pair {preset.name}: {src} -> {tgt}, trained on {train}, transferred on {target}"]
@@ -148,7 +151,7 @@ def _check(preset: PairPreset, envs: dict[tuple[str, str], BatchedEnv], runs_roo
         field = f"{_field(preset, agent, task)}.policy"
         choice = preset.agent_env(agent, task).policy
         try:
-            path = policy_path(preset, agent, task, None, runs_root)
+            path = policy_path(pair, agent, task)
         except PvedError as exc:
             if choice == TRAINED:  # not trained yet: a step to take, not a mistake
                 lines.append(f"  {agent}'s policy on {task}: {str(exc).partition('(')[2][:-1]}")

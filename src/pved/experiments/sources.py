@@ -17,6 +17,7 @@ from pved.config import EVAL_NUM_ENVS
 from pved.envs import make_batched
 from pved.envs.base import BatchedEnv
 from pved.errors import OptionError, PvedError
+from pved.pair import Pair, resolve_pair
 from pved.pairing.collect import Episode, rollout_first_episodes
 from pved.pairing.minari_io import (
     RecordedData,
@@ -27,8 +28,7 @@ from pved.pairing.minari_io import (
     read_recorded_episodes,
 )
 from pved.rl.external import load_policy_file
-from pved.run_layout import DEFAULT_RUNS, env_of, policy_path
-from pved.spec import get_preset
+from pved.run_layout import policy_path
 
 
 def check_one_source(source_policy: object, source_dataset: object) -> None:
@@ -59,7 +59,7 @@ def recorded_episodes(
 
 
 def export_source_dataset(
-    pair: str,
+    pair: str | Path | Pair,
     dataset_id: str,
     *,
     task: str | None = None,
@@ -67,7 +67,7 @@ def export_source_dataset(
     episodes: int = 100,
     seed: int = 0,
     deterministic: bool = True,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
 ) -> Path:
     """Roll out the pair's source agent on ``task`` (default: the pair's target task,
     what a bank holds; its training task is what pairing reads) and write the episodes
@@ -80,26 +80,26 @@ def export_source_dataset(
     keys on the target task, its shared task keys on the training task) are their reset
     options.
 
-    The source's env and policy are the pair spec's (:func:`~pved.run_layout.env_of`,
+    The source's env and policy are the pair spec's (:meth:`~pved.pair.Pair.env`,
     :func:`~pved.run_layout.policy_path`: a shipped policy, the pair's own
     ``train-policy`` run under ``runs_root``, or the file the spec names), as every other
     stage finds them, so a spec pair whose agents pved does not know exports as a built-in
     one does.
     """
-    preset = get_preset(pair)
-    pair = preset.name
+    pair = resolve_pair(pair, runs_root)
+    preset = pair.preset
     task = preset.target_task if task is None else task
     if task not in (preset.training_task, preset.target_task):
         raise PvedError(
-            f"unknown task {task!r} for {pair}: its tasks are {preset.training_task} "
+            f"unknown task {task!r} for {pair.name}: its tasks are {preset.training_task} "
             f"(training) and {preset.target_task} (target)"
         )
     check_int("--episodes", episodes, low=1)
     check_seed("--seed", seed)
     check_new_dataset_id(dataset_id)
     keys = preset.bank_match_keys if task == preset.target_task else preset.shared_task_keys
-    name, env_kwargs = env_of(preset, preset.source_agent, task)
-    path = policy_path(preset, preset.source_agent, task, source_policy, runs_root)
+    name, env_kwargs = pair.env(preset.source_agent, task)
+    path = policy_path(pair, preset.source_agent, task, source_policy)
     # the batch the consuming stage rolls out in: the policy's float32 forward pass rounds
     # by batch size (BLAS blocking, ~1e-7), and only the same batch repeats it bit for bit
     copies = min(EVAL_NUM_ENVS, episodes) if task == preset.target_task else preset.pairing.num_envs
@@ -111,7 +111,7 @@ def export_source_dataset(
             rollout_first_episodes(env, policy, seed + b * env.num_envs, None, deterministic)
         )
     provenance: dict[str, Any] = {
-        "pair": pair,
+        "pair": pair.name,
         "agent": preset.source_agent,
         "task": task,
         "env_id": name,
@@ -126,7 +126,7 @@ def export_source_dataset(
         task_keys=tuple(keys),
         seeds=[seed + j for j in range(episodes)],
         algorithm_name=f"pved rollouts of {path.name}",
-        description=f"{preset.source_agent} on {task}, exported by pved for pair {pair}",
+        description=f"{preset.source_agent} on {task}, exported by pved for pair {pair.name}",
         provenance=provenance,
     )
 

@@ -2,7 +2,8 @@
 
 Each stage reads files, writes its run directory (``pved.runs``) and returns the path
 of what it produced (or its result), so stages can be rerun, resumed, skipped when
-done, or replaced by the user's own data:
+done, or replaced by the user's own data. Each takes the pair resolved at the door
+(:func:`pved.pair.resolve_pair`), or its name or spec file, which it resolves once:
 
     train_policy  -> runs/<pair>/policy/<Agent>-<Task>/seed<k>/policy.pt
     collect_pairs -> runs/<pair>/pairs/<align>/seed<k>/pairs.npz
@@ -34,11 +35,12 @@ from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
 from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
-from pved.experiments.transfer_spec import transfer_spec
+from pved.experiments.transfer_spec import TransferSpec, transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
 from pved.models.train import train_model as fit_model
+from pved.pair import Pair, resolve_pair
 from pved.pairing.align import align as align_steps
 from pved.pairing.collect import (
     collect_episode_pairs,
@@ -59,18 +61,15 @@ from pved.rl.external import load_policy_file
 from pved.rl.policy import Policy
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds, train_ppo
 from pved.run_layout import (
-    DEFAULT_RUNS,
     bank_rollout_steps,
     check_bank_for,
     check_dataset_for,
     check_model_for,
-    default_dataset_path,
-    env_of,
     model_dataset_path,
     policy_path,
 )
-from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file, run_path
-from pved.spec import get_preset, preset_for_agent, spec_identity
+from pved.runs import Run, atomic_write_bytes, atomic_write_json, file_digest, run_file
+from pved.spec import preset_for_agent
 from pved.transfer.align_guide import AlignGuide, matched_distance_limit
 from pved.transfer.methods import get_method
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
@@ -116,11 +115,11 @@ def train_policy(
     seed: int = 0,
     steps: int | None = None,
     reward: str | None = None,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     eval_episodes: int | None = None,
     progress: bool = True,
     checkpoint_every_s: float | None = CHECKPOINT_SECONDS,
-    pair: str | None = None,
+    pair: str | Path | Pair | None = None,
 ) -> Path:
     """PPO for any agent on any task (``pved train-policy``). Returns the policy file.
 
@@ -133,13 +132,14 @@ def train_policy(
     (the end of training included) is the one saved, and ``result.json`` says which step
     it came from; judge it on fresh episodes (``pved evaluate``), not on these.
     ``checkpoint_every_s``: wall-clock seconds between checkpoints (:func:`train_ppo`)."""
-    preset = preset_for_agent(agent) if pair is None else get_preset(pair)
+    pair = resolve_pair(preset_for_agent(agent) if pair is None else pair, runs_root)
+    preset = pair.preset
     if agent not in (preset.source_agent, preset.target_agent):
         raise PvedError(
             f"unknown agent {agent!r} for {preset.name}: its agents are {preset.source_agent} "
             f"and {preset.target_agent}"
         )
-    name, spec_kwargs = env_of(preset, agent, task)
+    name, spec_kwargs = pair.env(agent, task)
     with named_options(seed="--seed", total_steps="--steps"):
         ppo = dataclasses.replace(
             preset.policy_config(agent, task), seed=seed, **given(total_steps=steps)
@@ -156,7 +156,7 @@ def train_policy(
     # the spec's env arguments (none for a built-in pair's: their hashes stand)
     env_kwargs = {**spec_kwargs, **({"reward": reward} if reward else {})}
     config = {"stage": "policy", "env_id": name, "env_kwargs": env_kwargs, "ppo": ppo}
-    run = Run(run_path(runs_root, preset.name, "policy", f"{agent}-{task}", seed), config)
+    run = Run(pair.runs.run("policy", f"{agent}-{task}", seed), config)
     policy_file = run.path / "policy.pt"
     if run.is_done() and policy_file.exists():
         return policy_file
@@ -228,7 +228,7 @@ def train_policy(
 
 
 def collect_pairs(
-    pair: str,
+    pair: str | Path | Pair,
     *,
     source_policy: Path | str | None = None,
     target_policy: Path | str | None = None,
@@ -236,7 +236,7 @@ def collect_pairs(
     seed: int = 0,
     align: str | None = None,
     task: str | None = None,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     progress: bool = True,
     source_dataset: Path | str | None = None,
 ) -> Path:
@@ -256,10 +256,9 @@ def collect_pairs(
     shared = []``, e.g. two stock Gymnasium envs) pairs the episodes by seed alone:
     the k-th episodes of both agents start from resets with the same seed.
 
-    ``pair`` is a pair's name or a spec file (:func:`pved.spec.load_pair`)."""
-    preset = get_preset(pair)
-    pair = preset.name
-    cfg = preset.pairing
+    ``pair`` is a pair's name, a spec file or a resolved pair (:func:`pved.pair.resolve_pair`)."""
+    pair = resolve_pair(pair, runs_root)
+    preset, cfg = pair.preset, pair.preset.pairing
     # the options checked as the pairing config checks its own fields; the run's config
     # keeps the preset's pairing config (its hash is that of the runs made before)
     with named_options(episodes="--episodes", align="--align", seed="--seed"):
@@ -273,28 +272,24 @@ def collect_pairs(
     task = preset.training_task if task is None else task
     if task not in (preset.training_task, preset.target_task):
         raise PvedError(
-            f"unknown task {task!r} for {pair}: its tasks are {preset.training_task} "
+            f"unknown task {task!r} for {pair.name}: its tasks are {preset.training_task} "
             f"(training) and {preset.target_task} (target)"
         )
     on_training_task = task == preset.training_task
     shared_task_keys = preset.shared_task_keys if on_training_task else preset.bank_match_keys
-    src_path = (
-        None
-        if recorded
-        else policy_path(preset, preset.source_agent, task, source_policy, runs_root)
-    )
-    tgt_path = policy_path(preset, preset.target_agent, task, target_policy, runs_root)
-    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
-    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
+    src_path = None if recorded else policy_path(pair, preset.source_agent, task, source_policy)
+    tgt_path = policy_path(pair, preset.target_agent, task, target_policy)
+    src_id, src_kwargs = pair.env(preset.source_agent, task)
+    tgt_id, tgt_kwargs = pair.env(preset.target_agent, task)
     config = {
         "stage": "pairs",
-        "pair": pair,
+        "pair": pair.name,
         "episodes": episodes,
         "seed": seed,
         "align": align,
         "pairing": cfg,
         "target_policy": file_digest(tgt_path),
-        **spec_identity(preset),
+        **pair.identity,
     }
     if recorded is None:
         assert src_path is not None
@@ -306,7 +301,7 @@ def collect_pairs(
         # only then, so the datasets made before the option keep their hashes and places
         config["task"] = task
         run_name = f"{task}-{align}"
-    run = Run(run_path(runs_root, pair, "pairs", run_name, seed), config, tensorboard=False)
+    run = Run(pair.runs.run("pairs", run_name, seed), config, tensorboard=False)
     out = run.path / "pairs.npz"
     if run.is_done() and out.exists():
         return out
@@ -342,12 +337,12 @@ def collect_pairs(
             progress=progress,
         )
     header = {
-        "pair": pair,
+        "pair": pair.name,
         "source_agent": preset.source_agent,
         "target_agent": preset.target_agent,
         "source_env_id": src_id,
         "target_env_id": tgt_id,
-        **spec_identity(preset),
+        **pair.identity,
         **(
             {"source_policy": str(src_path)}
             if recorded is None
@@ -418,29 +413,29 @@ def _dtw_fit(preset: PairPreset, header: dict[str, Any], seed: int, progress: bo
 
 
 def train_model(
-    pair: str,
+    pair: str | Path | Pair,
     model: str = "pved",
     *,
     dataset: Path | str | None = None,
     seed: int = 0,
     epochs: int | None = None,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     progress: bool = True,
 ) -> Path:
     """Fit a shared-space model on a paired dataset (``pved train-model``). A dataset
     collected for another pair, agents or spec is refused before the fit."""
-    preset = get_preset(pair)
-    pair = preset.name
+    pair = resolve_pair(pair, runs_root)
+    preset = pair.preset
     with named_options(epochs="--epochs", seed="--seed"):
         model_cfg = preset.model_config(model, seed=seed, epochs=epochs)
     data_path = (
         run_file(dataset, "pairs.npz", "dataset")
         if dataset is not None
-        else default_dataset_path(pair, runs_root)
+        else pair.runs.dataset(preset.pairing.align)
     )
     data = load_dataset(data_path)
     data.check_agents(preset.source_agent, preset.target_agent)
-    check_dataset_for(preset, data.header, data_path)
+    check_dataset_for(pair, data.header, data_path)
     # the envs the pairs were collected on: the training task's unless `--task` chose another
     task = preset.training_task
     for env_task in (preset.training_task, preset.target_task):
@@ -449,8 +444,8 @@ def train_model(
             == preset.agent_env(preset.target_agent, env_task).env_id
         ):
             task = env_task
-    src_id, src_kwargs = env_of(preset, preset.source_agent, task)
-    tgt_id, tgt_kwargs = env_of(preset, preset.target_agent, task)
+    src_id, src_kwargs = pair.env(preset.source_agent, task)
+    tgt_id, tgt_kwargs = pair.env(preset.target_agent, task)
     src_id = data.header.get("source_env_id", src_id)
     tgt_id = data.header.get("target_env_id", tgt_id)
     src_env = make_batched(src_id, 1, **src_kwargs)
@@ -463,13 +458,13 @@ def train_model(
     )
     config = {
         "stage": "model",
-        "pair": pair,
+        "pair": pair.name,
         "model": model,
         "dataset": file_digest(data_path),
         "model_config": model_cfg,
-        **spec_identity(preset),
+        **pair.identity,
     }
-    run = Run(run_path(runs_root, pair, "model", model, seed), config)
+    run = Run(pair.runs.run("model", model, seed), config)
     out = run.path / "model.pt"
     if run.is_done() and out.exists():
         return out
@@ -483,7 +478,7 @@ def train_model(
         fitted,
         out,
         {
-            "pair": pair,
+            "pair": pair.name,
             "model": model,
             # its digest, not its path: a model names no place on the machine it was made on
             "dataset": file_digest(data_path),
@@ -492,7 +487,7 @@ def train_model(
             "seed": seed,
             "robot_state_indices_source": data.header["robot_state_indices_source"],
             "robot_state_indices_target": data.header["robot_state_indices_target"],
-            **spec_identity(preset),
+            **pair.identity,
         },
     )
     last = run.read_metrics()[-1] if run.read_metrics() else {}
@@ -500,7 +495,7 @@ def train_model(
     collapsed = shared_subspace_collapsed(val)
     if collapsed:
         warnings.warn(
-            f"{model} on {pair}: both shared posteriors sit on the prior (validation KL of c "
+            f"{model} on {pair.name}: both shared posteriors sit on the prior (validation KL of c "
             f"below {COLLAPSE_NATS} nats), so its shaping reward is zero; see "
             "docs/decisions.md, 'Consistency warm-up'",
             stacklevel=2,
@@ -517,19 +512,19 @@ def train_model(
 
 
 def build_bank(
-    pair: str,
+    pair: str | Path | Pair,
     *,
     source_policy: Path | str | None = None,
     episodes: int | None = None,
     seed: int = 0,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     source_dataset: Path | str | None = None,
 ) -> Path:
     """Rollouts of the source's target-task policy, matched into Eq. 10 at transfer; with
     ``source_dataset`` (a Minari dataset id or folder) its recorded episodes instead
     (default all; ``episodes`` the first ones)."""
-    preset = get_preset(pair)
-    pair = preset.name
+    pair = resolve_pair(pair, runs_root)
+    preset = pair.preset
     if episodes is not None:
         with named_options(bank_episodes="--episodes"):
             dataclasses.replace(preset.transfer, bank_episodes=episodes)
@@ -539,40 +534,34 @@ def build_bank(
     if recorded is not None and episodes is None:
         episodes = recorded.episodes
     episodes = preset.transfer.bank_episodes if episodes is None else episodes
-    name, env_kwargs = env_of(preset, preset.source_agent, preset.target_task)
+    name, env_kwargs = pair.bank_env
     config: dict[str, Any] = {
         "stage": "bank",
         "env_id": name,
         "episodes": episodes,
         "seed": seed,
         "match_keys": preset.bank_match_keys,
-        **spec_identity(preset),
+        **pair.identity,
     }
     # rollouts as long as the target's episode on the pairs' time base; only where that
     # is past the source env's own limit (humanoid-ant), so other banks keep their configs
-    step_limit = bank_rollout_steps(preset, name, env_kwargs) if source_dataset is None else None
+    step_limit = bank_rollout_steps(pair) if source_dataset is None else None
     if step_limit is not None:
         config["step_limit"] = step_limit
     if recorded is None:
-        path = policy_path(
-            preset, preset.source_agent, preset.target_task, source_policy, runs_root
-        )
+        path = policy_path(pair, preset.source_agent, preset.target_task, source_policy)
         config["source_policy"] = file_digest(path)
     else:
         config["source_dataset"] = recorded.provenance["digest"]
-    run = Run(
-        run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", seed),
-        config,
-        tensorboard=False,
-    )
-    out = run.path / "bank.npz"
+    out = pair.runs.bank(preset.source_agent, preset.target_task, seed)
+    run = Run(out.parent, config, tensorboard=False)
     if run.is_done() and out.exists():
         return out
     check_writable("--runs", run.path)
     env = _eval_env(name, episodes, step_limit=step_limit, **env_kwargs)
     # a spec's digest only for a pair of its own: a built-in pair's bank is the bytes it
     # always was, so the transfer runs that hash it keep their configs
-    identity = spec_identity(preset)
+    identity = pair.identity
     if recorded is None:
         policy = load_policy_file(path, env=env, env_name=name)
         run.start()
@@ -602,7 +591,7 @@ def build_bank(
 
 
 def transfer(
-    pair: str,
+    pair: str | Path | Pair,
     method: str = "pved",
     *,
     seed: int = 20000,
@@ -613,7 +602,7 @@ def transfer(
     eval_every: int | None = None,
     eval_episodes: int | None = None,
     final_eval_episodes: int | None = None,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     run_name: str | None = None,
     progress: bool = True,
     shaping_start: int = 0,
@@ -624,8 +613,10 @@ def transfer(
     """PPO of the target agent on the target task (``pved transfer``); returns
     ``result.json``.
 
-    The run lives in ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``;
-    a ``run_name`` keeps apart runs of one method with different betas, models or banks.
+    ``pair`` is a :class:`~pved.pair.Pair` resolved at the door, or its name or spec file
+    (resolved here, once; ``runs_root`` moves its runs). The run lives in
+    ``<runs>/<pair>/transfer/<run_name or method>/seed<seed>``; a ``run_name`` keeps apart
+    runs of one method with different betas, models or banks.
 
     ``method`` is a name of :data:`pved.transfer.methods.METHODS`: a model's name
     (``pved``, a variant, ``gupta2017``: the target agent's restricted reward plus the
@@ -646,9 +637,8 @@ def transfer(
     :func:`check_bank_for`)."""
     torch.set_num_threads(1)
     check_checkpoint_seconds(checkpoint_every_s, "--checkpoint-seconds")
-    preset = get_preset(pair)
-    pair = preset.name
-    env_kwargs = env_of(preset, preset.target_agent, preset.target_task)[1]
+    # the pair is resolved once, here (a name or a spec file) or by the caller: the spec
+    # carries it, and nothing below looks it up again
     spec = transfer_spec(
         pair,
         method,
@@ -666,46 +656,23 @@ def transfer(
         shaping_form=shaping_form,
         shaping_action=shaping_action,
     )
-    name, ppo, shaping_inputs = spec.env_id, spec.ppo, spec.shaping_inputs
-    eval_episodes, final_episodes = spec.eval_episodes, spec.final_episodes
     run = Run(spec.run_dir, spec.config)
     if run.is_done():
         return run.read_result()
     check_writable("--runs", run.path)
-    env = make_batched(name, ppo.num_envs, **spec.train_env_kwargs)
-    if shaping_inputs is not None:
-        model = load_model(shaping_inputs[0])
-        check_model_for(
-            preset, model, shaping_inputs[0], get_method(method).model, env.robot_state_indices
-        )
-        bank = load_bank(shaping_inputs[1])
-        check_bank_for(preset, bank, shaping_inputs[1], model)
-        shaping = LatentShaping(
-            model,
-            bank,
-            spec.beta,
-            env.robot_state_indices,
-            start=spec.shaping_start,
-            stop=spec.shaping_stop,
-            form=spec.shaping_form,
-            time_scale=bank_time_scale(
-                preset.pairing.align, bank_dt(bank), getattr(env, "dt", None)
-            ),
-            action=spec.shaping_action,
-            gamma=ppo.gamma,
-            align_anneal=spec.align_anneal,
-        )
-        env = ShapedBatchedEnv(env, shaping, preset.bank_match_keys)
-        if isinstance(env.action_guide, AlignGuide):  # its D gate reads the model's pairs
-            pairs = load_dataset(model_dataset_path(preset, model, runs_root))
-            env.action_guide.d_limit = matched_distance_limit(model, *pairs.model_inputs())
+    env = _training_env(spec, method)
     guide = getattr(env, "action_guide", None)
-    eval_fn = _eval_fn(
-        name, eval_episodes, 10**6 + seed, env_kwargs, info_keys=preset.eval_info_keys
-    )
+    name, env_kwargs = spec.pair.target_env
+    info_keys = spec.pair.preset.eval_info_keys
+    eval_fn = _eval_fn(name, spec.eval_episodes, 10**6 + seed, env_kwargs, info_keys=info_keys)
     run.start()
     policy = train_ppo(
-        env, ppo, run, eval_fn=eval_fn, progress=progress, checkpoint_every_s=checkpoint_every_s
+        env,
+        spec.ppo,
+        run,
+        eval_fn=eval_fn,
+        progress=progress,
+        checkpoint_every_s=checkpoint_every_s,
     )
     policy_file = run.path / "policy.pt"
     policy.save(
@@ -714,22 +681,23 @@ def transfer(
             "env_id": name,
             "seed": seed,
             "method": method,
-            "steps": ppo.total_steps,
+            "steps": spec.ppo.total_steps,
             "pved_version": __version__,
         },
     )
+    final_episodes = spec.final_episodes
     final = evaluate_policy(
         policy,
         _eval_env(name, final_episodes, **env_kwargs),
         episodes=final_episodes,
         seed=2 * 10**6 + seed,
-        info_keys=preset.eval_info_keys,
+        info_keys=info_keys,
     )
     return run.finish(
         {
             "method": method,
             "seed": seed,
-            "steps": ppo.total_steps,
+            "steps": spec.ppo.total_steps,
             "policy": str(policy_file),
             # pved-align's loss in numpy or by autograd: rounding apart, the same run
             **({"guide_backend": guide.backend} if isinstance(guide, AlignGuide) else {}),
@@ -739,6 +707,40 @@ def transfer(
     )
 
 
+def _training_env(spec: TransferSpec, method: str) -> BatchedEnv:
+    """The env a transfer run trains on: the target's, wrapped in Eq. 10's shaping (or a
+    guide) for a shaped method, whose model and bank are checked against the pair first
+    (:func:`check_model_for`, :func:`check_bank_for`)."""
+    pair = spec.pair
+    env = make_batched(spec.env_id, spec.ppo.num_envs, **spec.train_env_kwargs)
+    if spec.shaping_inputs is None:
+        return env
+    model_path, bank_path = spec.shaping_inputs
+    model, bank = load_model(model_path), load_bank(bank_path)
+    check_model_for(pair, model, model_path, get_method(method).model, env.robot_state_indices)
+    check_bank_for(pair, bank, bank_path, model)
+    shaping = LatentShaping(
+        model,
+        bank,
+        spec.beta,
+        env.robot_state_indices,
+        start=spec.shaping_start,
+        stop=spec.shaping_stop,
+        form=spec.shaping_form,
+        time_scale=bank_time_scale(
+            pair.preset.pairing.align, bank_dt(bank), getattr(env, "dt", None)
+        ),
+        action=spec.shaping_action,
+        gamma=spec.ppo.gamma,
+        align_anneal=spec.align_anneal,
+    )
+    shaped = ShapedBatchedEnv(env, shaping, pair.preset.bank_match_keys)
+    if isinstance(shaped.action_guide, AlignGuide):  # its D gate reads the model's pairs
+        pairs = load_dataset(model_dataset_path(pair, model))
+        shaped.action_guide.d_limit = matched_distance_limit(model, *pairs.model_inputs())
+    return shaped
+
+
 def evaluate(
     policy_path: Path | str,
     env_name: str | None = None,
@@ -746,7 +748,7 @@ def evaluate(
     episodes: int = 500,
     seed: int = 0,
     reward: str | None = None,
-    pair: str | None = None,
+    pair: str | Path | Pair | None = None,
 ) -> dict[str, float]:
     """Evaluate a saved policy (``pved evaluate``): success rate, return, length, and the
     pair's metric (e.g. the distance travelled along x for the locomotion pairs).
@@ -760,7 +762,8 @@ def evaluate(
     env_kwargs: dict[str, Any] = {}
     info_keys: tuple[str, ...] = ()
     if pair is not None:
-        preset = get_preset(pair)
+        pair = resolve_pair(pair)
+        preset = pair.preset
         agent, task = preset.target_agent, preset.target_task
         if env_name is not None:
             found = [e for e in preset.envs if e.env_id == env_name]
@@ -768,7 +771,7 @@ def evaluate(
                 ids = ", ".join(dict.fromkeys(e.env_id for e in preset.envs))
                 raise PvedError(f"env {env_name!r} is not one of {preset.name}'s: {ids}")
             agent, task = found[0].agent, found[0].task
-        env_name, env_kwargs = env_of(preset, agent, task)
+        env_name, env_kwargs = pair.env(agent, task)
         info_keys = preset.eval_info_keys
     elif env_name is None:
         raise PvedError("evaluate needs --env or --pair")

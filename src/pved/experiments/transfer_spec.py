@@ -15,11 +15,10 @@ from typing import Any
 from pved.checks import check_int, given, named_options
 from pved.errors import PvedError
 from pved.models.registry import MODELS
+from pved.pair import Pair, resolve_pair
 from pved.rl.guide import GATE_EPISODES, GATE_Z, GUIDE_GRAD_RATIO
 from pved.rl.ppo import PPOConfig
-from pved.run_layout import DEFAULT_RUNS, default_model_path, env_of
-from pved.runs import file_digest, run_file, run_path
-from pved.spec import get_preset, spec_identity
+from pved.runs import file_digest, run_file
 from pved.transfer.align_guide import ALIGN_ANNEAL, D_GATE_FACTOR, D_GATE_QUANTILE, D_GATE_ROWS
 from pved.transfer.methods import get_method
 from pved.transfer.prior_guide import check_prior_model
@@ -32,6 +31,7 @@ class TransferSpec:
     the config its hash is taken of, and what it trains on.
 
     Attributes:
+        pair: the pair, resolved (:func:`pved.pair.resolve_pair`).
         config: the resolved config (``config.json``; its hash decides whether a run
             directory holds this run).
         run_dir: ``runs_root/<pair>/transfer/<run_name or method>/seed<seed>``.
@@ -46,6 +46,7 @@ class TransferSpec:
             method's ``anneal`` of the run; 0: never, :class:`LatentShaping`).
     """
 
+    pair: Pair
     config: dict[str, Any]
     run_dir: Path
     env_id: str
@@ -62,9 +63,10 @@ class TransferSpec:
     shaping_stop: int = 0
 
 
-def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
+def eq10_config(bank_time: str, shaping_action: str = "mean") -> dict[str, Any]:
     """The entries of a shaped transfer run's config that say how Eq. 10 is computed
-    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base, the
+    (docs/decisions.md, "Transfer (Eq. 10)"): the bank read on the pairs' time base
+    (``bank_time``: the pair's alignment, ``PairingConfig.align``), the
     target action encoded, and the term scaled by the shaped return's std but never
     clipped; and a target step past the end of its source episode compared with nothing
     (``source_end``; docs/decisions/transfer.md, "A target step past the source's end").
@@ -72,7 +74,7 @@ def eq10_config(pair: str, shaping_action: str = "mean") -> dict[str, Any]:
     lack them, so their config hashes differ, and a protocol does not take them
     (``Job.required_config``)."""
     return {
-        "bank_time": get_preset(pair).pairing.align,
+        "bank_time": bank_time,
         "shaping_action": shaping_action,
         "reward_scaling": "term-scaled-unclipped",
         "source_end": "no-comparison",
@@ -99,7 +101,7 @@ def guide_limits(form: str) -> dict[str, Any]:
 
 
 def transfer_spec(
-    pair: str,
+    pair: str | Path | Pair,
     method: str = "pved",
     *,
     seed: int = 20000,
@@ -110,13 +112,15 @@ def transfer_spec(
     eval_every: int | None = None,
     eval_episodes: int | None = None,
     final_eval_episodes: int | None = None,
-    runs_root: Path = DEFAULT_RUNS,
+    runs_root: Path | None = None,
     run_name: str | None = None,
     shaping_start: int = 0,
     shaping_form: str | None = None,
     shaping_action: str = "mean",
 ) -> TransferSpec:
     """The :class:`TransferSpec` of ``transfer(...)`` with the same arguments (see there).
+    ``pair`` is resolved here (:func:`pved.pair.resolve_pair`; a :class:`Pair` is taken as
+    it is, under ``runs_root`` when given), once for the whole run: the spec carries it.
     Reads the model and bank only to hash them; a missing one raises :class:`PvedError`."""
     recipe = get_method(method)  # an unknown method name fails here, before any file check
     shaping_form = recipe.shaping_form if shaping_form is None else shaping_form
@@ -126,8 +130,8 @@ def transfer_spec(
     if shaping_form == "prior" and recipe.model is not None:  # before any file is read
         check_prior_model(MODELS[recipe.model])
     check_int("--shaping-start", shaping_start, low=0)
-    preset = get_preset(pair)
-    pair = preset.name
+    pair = resolve_pair(pair, runs_root)
+    preset = pair.preset
     # Every option lands in the transfer and PPO configs, which check their fields (a
     # negative or NaN beta, a negative count of final episodes): refused here, before a
     # file is read or a directory made, not after the training.
@@ -156,16 +160,16 @@ def transfer_spec(
             **given(total_steps=steps),
         )
     beta, eval_episodes, final_episodes = tcfg.beta, tcfg.eval_episodes, tcfg.final_eval_episodes
-    name, env_kwargs = env_of(preset, preset.target_agent, preset.target_task)
+    name, env_kwargs = pair.target_env
     config: dict[str, Any] = {
         "stage": "transfer",
-        "pair": pair,
+        "pair": pair.name,
         "method": method,
         "env_id": name,
         "ppo": ppo,
         "eval_episodes": eval_episodes,
         "final_eval_episodes": final_episodes,
-        **spec_identity(preset),
+        **pair.identity,
     }
     shaping_inputs: tuple[Path, Path] | None = None
     shaping_stop = 0
@@ -182,22 +186,19 @@ def transfer_spec(
         m_path = (
             run_file(model_path, "model.pt", "model")
             if model_path
-            else default_model_path(pair, recipe.model, runs_root)
+            else pair.runs.model(recipe.model)
         )
         b_path = (
             run_file(bank_path, "bank.npz", "source bank")
             if bank_path
-            else (
-                run_path(runs_root, pair, "bank", f"{preset.source_agent}-{preset.target_task}", 0)
-                / "bank.npz"
-            )
+            else pair.runs.bank(preset.source_agent, preset.target_task)
         )
         for what, p in (("model", m_path), ("source bank", b_path)):
             if not p.exists():
                 raise PvedError(f"{what} not found: {p} (run the earlier stages first)")
         shaping_inputs = (m_path, b_path)
         config.update(beta=beta, model=file_digest(m_path), bank=file_digest(b_path))
-        config.update(eq10_config(pair, shaping_action))
+        config.update(eq10_config(preset.pairing.align, shaping_action))
         # both only when set, so the runs made before they existed keep their config hashes
         if shaping_start:
             config["shaping_start"] = shaping_start
@@ -224,8 +225,9 @@ def transfer_spec(
     if shaping_form != "eq10" and shaping_inputs is None:
         raise PvedError(f"a shaping form needs a shaping method; {method!r} has no shaping term")
     return TransferSpec(
+        pair=pair,
         config=config,
-        run_dir=run_path(runs_root, pair, "transfer", run_name or method, seed),
+        run_dir=pair.runs.run("transfer", run_name or method, seed),
         env_id=name,
         ppo=ppo,
         eval_episodes=eval_episodes,

@@ -39,7 +39,6 @@ from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS
 from pved.run_layout import transfer_run_method
 from pved.runs import atomic_write_bytes, atomic_write_json, repoint_result, run_path
-from pved.spec import get_preset
 from pved.transfer.methods import NO_TRANSFER, ORACLE, REFERENCE_METHODS, get_method
 from pved.transfer.shaping import GUIDE_FORMS
 
@@ -247,7 +246,7 @@ def pair_panel(
     panel of Fig. 3), or None when no method has any."""
     from pved.analysis.curves import Panel, load_curve
 
-    metric = get_preset(pair).metric
+    metric = plan.resolved[pair].preset.metric
     curves = []
     for method in plan.methods:
         run_dirs = [
@@ -306,7 +305,7 @@ def _summarize(
     panels = []
     every_run: list[str] = []
     for pair in plan.pairs:
-        preset = get_preset(pair)
+        preset = plan.resolved[pair].preset
         metric = preset.metric
         methods: dict[str, Any] = {}
         for method in plan.methods:

@@ -54,11 +54,12 @@ from pved.config import PRETRAINED, TRAINED, ProtocolBudget, get_budget
 from pved.errors import PvedError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
 from pved.experiments.transfer_spec import eq10_config
+from pved.pair import Pair, resolve_pair
 from pved.pretrained import pretrained_policy_path, shipped_seeds
 from pved.protocol.runner import Job, read_job_result
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds
-from pved.run_layout import default_dataset_path, default_model_path, transfer_run_name
+from pved.run_layout import transfer_run_name
 from pved.runs import run_path
 from pved.spec import get_preset, preset_for_agent
 from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
@@ -67,7 +68,7 @@ PLAN_FILE = "protocol.json"
 
 
 def indexed_policy(
-    agent: str, task: str, index: int, runs: Path, pair: str | None = None
+    agent: str, task: str, index: int, runs: Path, pair: Pair | None = None
 ) -> tuple[Path, int, bool]:
     """The protocol's ``index``-th policy of ``agent`` on ``task`` in ``pair`` (default:
     the first pair the agent is in): where the pair's spec says ``pretrained``, the
@@ -75,7 +76,7 @@ def indexed_policy(
     names a file (a user's own policy, an SB3 ``.zip``), that file as policy 0; then runs
     under ``runs`` that train the seeds not taken, 0, 1, ... Returns (policy file, seed,
     whether it is there already, shipped or given)."""
-    preset = preset_for_agent(agent) if pair is None else get_preset(pair)
+    preset = preset_for_agent(agent) if pair is None else pair.preset
     choice = preset.agent_env(agent, task).policy
     shipped = shipped_seeds(agent, task) if choice == PRETRAINED else []
     if index < len(shipped):
@@ -187,8 +188,10 @@ class ProtocolPlan:
             raise PvedError("protocol needs at least one pair")
         if not methods:
             raise PvedError("protocol needs at least one method")
-        for pair in pairs:
-            get_preset(pair)
+        # each pair resolved once, here (an unknown one fails with the known ones); the
+        # jobs carry its name, which the stages resolve again in their own process
+        runs = Path(out).resolve() / "runs"
+        self.resolved = {pair: resolve_pair(pair, runs) for pair in pairs}
         for method in methods:
             get_method(method)  # an unknown name fails here with the known ones
         if len(set(methods)) != len(methods) or len(set(pairs)) != len(pairs):
@@ -197,7 +200,7 @@ class ProtocolPlan:
         self.methods = list(methods)
         self.budget: ProtocolBudget = get_budget(budget)
         self.out = Path(out).resolve()
-        self.runs = self.out / "runs"
+        self.runs = runs
         # what each selection chose, filled in by expand() as results arrive
         self.selection: dict[str, dict[str, Any]] = {}
         # selections made elsewhere (fixed_selections): pair -> method -> beta, init, ...
@@ -224,7 +227,9 @@ class ProtocolPlan:
             "pairs": self.pairs,
             "methods": self.methods,
             "budget": budget,
-            "transfer_steps": {p: get_preset(p).transfer_steps(b.steps_budget) for p in self.pairs},
+            "transfer_steps": {
+                p: self._pair(p).preset.transfer_steps(b.steps_budget) for p in self.pairs
+            },
             "beta_grids": {
                 p: {m: list(self._grid(p, m)) for m in self.model_methods} for p in self.pairs
             },
@@ -253,12 +258,20 @@ class ProtocolPlan:
 
     # -- pieces ----------------------------------------------------------------------
 
+    def _pair(self, pair: str) -> Pair:
+        """``pair`` resolved, its runs under the protocol's ``runs/``."""
+        return self.resolved[pair]
+
+    def _dataset_path(self, pair: str) -> Path:
+        resolved = self._pair(pair)
+        return resolved.runs.dataset(resolved.preset.pairing.align)
+
     @property
     def model_methods(self) -> list[str]:
         return [m for m in self.methods if get_method(m).shaped]
 
     def _grid(self, pair: str, method: str) -> tuple[float, ...]:
-        preset = get_preset(pair)
+        preset = self._pair(pair).preset
         own = get_method(method).beta_grid
         # the pair's grid for the method where it sets one, else the method's own scale
         if own is not None and method not in dict(preset.method_beta_grids):
@@ -271,10 +284,10 @@ class ProtocolPlan:
     def _policy(self, pair: str, agent: str, task: str, index: int) -> tuple[Path, Job | None]:
         """The ``index``-th policy of ``agent`` on ``task`` in ``pair``
         (:func:`indexed_policy`), with the job that trains it where it is not there."""
-        path, seed, shipped = indexed_policy(agent, task, index, self.runs, pair)
+        path, seed, shipped = indexed_policy(agent, task, index, self.runs, self._pair(pair))
         if shipped:
             return path, None
-        preset = get_preset(pair)
+        preset = self._pair(pair).preset
         run_dir = path.parent
         steps = self.budget.policy_steps or preset.policy_config(agent, task).total_steps
         job = Job(
@@ -307,7 +320,7 @@ class ProtocolPlan:
         source: int = 0,
         deps: tuple[str, ...] = (),
     ) -> Job:
-        preset = get_preset(pair)
+        preset = self._pair(pair).preset
         b = self.budget
         steps = preset.transfer_steps(b.steps_budget)
         kwargs: dict[str, Any] = {
@@ -328,7 +341,7 @@ class ProtocolPlan:
             name = transfer_run_name(method, beta, init, source)
             kwargs.update(
                 beta=beta,
-                model_path=default_model_path(pair, self._model(method), self.runs, seed=init),
+                model_path=self._pair(pair).runs.model(self._model(method), init),
                 bank_path=self._bank_path(pair, source),
             )
         kwargs["run_name"] = name
@@ -336,7 +349,7 @@ class ProtocolPlan:
         # them (priority 0); evaluation runs fill the workers left over
         tuning = method not in REFERENCE_METHODS and seed in b.tuning_seeds
         # a shaped run made before Eq. 10's fixes (restored or copied) is made again
-        required = {} if method in REFERENCE_METHODS else eq10_config(pair)
+        required = {} if method in REFERENCE_METHODS else eq10_config(preset.pairing.align)
         return Job(
             key=f"{pair}/transfer/{name}/seed{seed}",
             fn=transfer,
@@ -351,7 +364,7 @@ class ProtocolPlan:
         )
 
     def _bank_path(self, pair: str, source: int) -> Path:
-        preset = get_preset(pair)
+        preset = self._pair(pair).preset
         name = f"{preset.source_agent}-{preset.target_task}"
         return run_path(self.runs, pair, "bank", name, source) / "bank.npz"
 
@@ -371,7 +384,7 @@ class ProtocolPlan:
             kwargs={
                 "pair": pair,
                 "model": method,
-                "dataset": default_dataset_path(pair, self.runs),
+                "dataset": self._dataset_path(pair),
                 "seed": init,
                 "epochs": self.budget.model_epochs,
                 "runs_root": self.runs,
@@ -394,7 +407,7 @@ class ProtocolPlan:
         return jobs
 
     def _expand_pair(self, pair: str, results: Mapping[str, Any]) -> list[Job]:
-        preset = get_preset(pair)
+        preset = self._pair(pair).preset
         b = self.budget
         jobs: list[Job] = []
         seen: set[str] = set()
@@ -436,7 +449,7 @@ class ProtocolPlan:
                     "progress": False,
                 },
                 deps=policy_deps,
-                run_dir=default_dataset_path(pair, self.runs).parent,
+                run_dir=self._dataset_path(pair).parent,
                 end_product=False,  # read only by the models
             )
         )
@@ -599,7 +612,7 @@ class ProtocolPlan:
         b = self.budget
         total = 0
         for pair in self.pairs:
-            preset = get_preset(pair)
+            preset = self._pair(pair).preset
             steps = preset.transfer_steps(b.steps_budget)
             per_eval = b.source_policies * len(b.evaluation_seeds)
             for method in self.methods:
