@@ -233,3 +233,39 @@ def test_a_smoke_transfer_with_pved_prior_writes_its_result(
     losses = [r["loss/guide_loss"] for r in rows if "loss/guide_loss" in r]
     assert len(losses) == 2 and losses[0] > 0 and losses[1] == 0.0
     assert json.loads((run / "config.json").read_text())["config"]["shaping_form"] == "prior"
+
+
+def test_the_prior_acted_out_is_the_guides_context_beside_zero_and_random(
+    inputs: tuple[SourceBank, PVED], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from helpers import run_cli
+    from pved.diagnostics.prior_policy import prior_policy
+    from pved.models.registry import save_model
+    from pved.transfer.source_bank import save_bank
+
+    bank, model = inputs
+    # the context guide_context gives before a step is the one that step carries
+    env = _shaped(model, bank)
+    env.reset(seed=3)
+    before = env.guide_context()
+    assert before is not None
+    env.set_mean_actions(before)
+    _, _, _, _, info = env.step(before.astype(np.float64))
+    np.testing.assert_array_equal(before, info[GUIDE_CONTEXT])
+    model_file = save_model(model, tmp_path / "model.pt", {"pair": "reacher"})
+    bank_file = save_bank(tmp_path / "bank.npz", bank)
+    result = prior_policy("reacher", model_file, bank_file, episodes=8, seed=1)
+    for label in ("prior", "zero", "random"):
+        assert result[label]["episodes"] == 8 and "success_rate" in result[label]
+        assert "metric_ee_button_mean" in result[label]
+    # the random peer moves the arm; the prior's actions differ from both peers'
+    assert result["random"]["metric_ctrl_mean"] < result["zero"]["metric_ctrl_mean"] == 0.0
+    assert result["prior"]["metric_ee_button_mean"] != result["zero"]["metric_ee_button_mean"]
+    code, out, _ = run_cli(
+        capsys, "prior-policy", "--model", model_file, "--bank", bank_file, "--episodes", 4
+    )
+    assert code == 0 and out.startswith("| policy | success_rate | return_mean |")
+    code, _, err = run_cli(
+        capsys, "prior-policy", "--model", model_file, "--bank", bank_file, "--episodes", 0
+    )
+    assert code != 0 and "--episodes" in err and len(err.strip().splitlines()) == 1

@@ -28,6 +28,8 @@ from pved.protocol.driver import COPYABLE_STAGES, copy_stage_runs
 from pved.protocol.plan import (
     PLAN_FILE,
     ProtocolPlan,
+    _best,
+    _candidates,
     fixed_selections,
 )
 from pved.protocol.runner import Job, resolve_backend, run_jobs
@@ -1393,3 +1395,37 @@ def test_a_shaped_run_made_before_the_eq10_fixes_is_made_again(tmp_path: Path) -
     (shaped.run_dir / "config.json").write_text(json.dumps({"config": new_config}))
     assert read_job_result(shaped.run_dir, shaped.required_config) == _fake(0.5)
     assert shaped.key in finished_results(plan)
+
+
+def test_screen_auc_chooses_by_the_area_where_screen_chooses_by_the_final(tmp_path: Path) -> None:
+    # two betas: 0.1 learns early and ends at 0.98, 10 learns late and ends at 1.0
+    curves = {0.1: [0.0, 1.0, 1.0, 0.98], 10.0: [0.0, 0.0, 0.0, 1.0]}
+    groups: dict[tuple[float, int], list[Job]] = {}
+    results: dict[str, Any] = {}
+    for beta, values in curves.items():
+        jobs = []
+        for seed in (2000, 4000, 6000):
+            key = f"reacher/transfer/b{beta}/seed{seed}"
+            run_dir = tmp_path / key
+            run_dir.mkdir(parents=True)
+            lines = [
+                json.dumps({"step": 100 * i, "eval/success_rate": v}) for i, v in enumerate(values)
+            ]
+            (run_dir / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+            results[key] = {"final/success_rate": values[-1], "final/return_mean": -3.0}
+            jobs.append(Job(key=key, fn=transfer, run_dir=run_dir))
+        groups[(beta, 0)] = jobs
+    by_final = _candidates(groups, results, "success_rate")
+    by_area = _candidates(groups, results, "success_rate", "auc")
+    assert _best(by_final).beta == 10.0 and _best(by_area).beta == 0.1
+    assert by_area[0].scores == (pytest.approx((0.5 + 1.0 + 0.99) / 3),) * 3
+    assert get_budget("screen-auc").select_by == "auc" and get_budget("screen").select_by == "final"
+    # the same runs: screen-auc's seeds and steps are screen's
+    for field in ("tuning_seeds", "evaluation_seeds", "steps_budget", "source_policies"):
+        assert getattr(get_budget("screen-auc"), field) == getattr(get_budget("screen"), field)
+    with pytest.raises(PvedError, match="select_by"):
+        dataclasses.replace(get_budget("screen"), select_by="median")
+    # a tuning run without its curve cannot be scored by its area: said, not guessed
+    (groups[(0.1, 0)][0].run_dir / "metrics.jsonl").unlink()
+    with pytest.raises(PvedError, match="no learning curve"):
+        _candidates(groups, results, "success_rate", "auc")

@@ -236,6 +236,10 @@ class PairPreset:
         return self.policy
 
 
+#: What a protocol's tuning may score its candidates by (``ProtocolBudget.select_by``).
+SELECT_BY = ("final", "auc")
+
+
 @dataclass(frozen=True)
 class ProtocolBudget:
     """How much of the paper's protocol (IV.A) one ``pved protocol`` run does.
@@ -260,6 +264,11 @@ class ProtocolBudget:
             stages; ``policy_steps`` only matters for policies the package does not ship.
         steps_of: the budget whose steps per transfer run this one takes (None: its
             own name's, ``PairPreset.protocol_steps``).
+        select_by: what a tuning candidate (β, then init) is scored by on the tuning
+            seeds: ``"final"``, the pair's metric after training (paper IV.A), or
+            ``"auc"``, the normalised area under its learning curve of that metric
+            (``pved.analysis.run_curves.auc``; issue 64's goal is the area). The final
+            return breaks ties either way.
     """
 
     name: str
@@ -277,6 +286,13 @@ class ProtocolBudget:
     bank_episodes: int | None = None
     policy_steps: int | None = None
     steps_of: str | None = None
+    select_by: str = "final"
+
+    def __post_init__(self) -> None:
+        if self.select_by not in SELECT_BY:
+            raise PvedError(
+                f"select_by must be one of {', '.join(SELECT_BY)}, got {self.select_by!r}"
+            )
 
     @property
     def steps_budget(self) -> str:
@@ -312,6 +328,15 @@ BUDGETS: dict[str, ProtocolBudget] = {
         tuning_seeds=TUNING_SEEDS[:3],
         evaluation_seeds=SCREEN_SEEDS,
         steps_of="quick",
+    ),
+    # screen's runs, β and init chosen by the area under the tuning runs' learning curves
+    # instead of their final score (docs/decisions/protocol.md, "The rule's amendment")
+    "screen-auc": ProtocolBudget(
+        name="screen-auc",
+        tuning_seeds=TUNING_SEEDS[:3],
+        evaluation_seeds=SCREEN_SEEDS,
+        steps_of="quick",
+        select_by="auc",
     ),
     # paper IV.A: 5 tuning seeds, 3 source policies x 5 evaluation seeds, 3 model inits
     "paper": ProtocolBudget(name="paper"),

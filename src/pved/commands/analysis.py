@@ -175,6 +175,33 @@ def add_bound(v: Verbs) -> None:
     p.set_defaults(func=_cmd_bound)
 
 
+def _cmd_prior_policy(args: argparse.Namespace) -> None:
+    from pved.diagnostics.prior_policy import prior_policy
+
+    result = prior_policy(args.pair, args.model, args.bank, episodes=args.episodes, seed=args.seed)
+    if args.json:
+        print_json(result)
+    else:
+        print(result["summary"])
+
+
+def add_prior_policy(v: Verbs) -> None:
+    pair_help, sub = v.pair_help, v.sub
+
+    p = sub.add_parser(
+        "prior-policy",
+        help="act out pved-prior's decoded prior on the target task, beside zero and random "
+        "actions",
+    )
+    p.add_argument("--pair", default="reacher", help=pair_help)
+    p.add_argument("--model", type=Path, required=True, help="a PVED model.pt or its run directory")
+    p.add_argument("--bank", type=Path, required=True, help="bank.npz or its run directory")
+    p.add_argument("--episodes", type=int, default=200)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print every number as JSON")
+    p.set_defaults(func=_cmd_prior_policy)
+
+
 def _cmd_audit_shaping(args: argparse.Namespace) -> None:
     from pved.diagnostics.shaping_audit import audit_pair
     from pved.runs import run_file
@@ -545,6 +572,7 @@ VERBS = (
     add_report,
     add_tsne,
     add_bound,
+    add_prior_policy,
     add_audit_shaping,
     add_audit_likelihood,
     add_video,

@@ -50,6 +50,8 @@ from typing import Any
 
 import numpy as np
 
+from pved.analysis.curves import read_eval_points
+from pved.analysis.run_curves import auc
 from pved.config import PRETRAINED, TRAINED, ProtocolBudget, get_budget
 from pved.errors import PvedError
 from pved.experiments.stages import build_bank, collect_pairs, train_model, train_policy, transfer
@@ -61,7 +63,7 @@ from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS, check_checkpoint_seconds
 from pved.run_layout import transfer_run_name
 from pved.runs import run_path
-from pved.spec import get_preset, preset_for_agent
+from pved.spec import preset_for_agent
 from pved.transfer.methods import AA_REFERENCE, REFERENCE_METHODS, get_method
 
 PLAN_FILE = "protocol.json"
@@ -97,7 +99,9 @@ class Candidate:
 
     beta: float
     init: int
-    scores: tuple[float, ...]  # the metric of each tuning seed's run
+    # each tuning seed's run's score: its final metric, or the normalised area under its
+    # curve of the metric where the budget selects by it (ProtocolBudget.select_by)
+    scores: tuple[float, ...]
     returns: tuple[float, ...]  # the final return of each (the tie-breaker)
 
     def key(self, resolution: float | None = None) -> tuple[float, float]:
@@ -495,6 +499,8 @@ class ProtocolPlan:
             assert model0 is not None
             grid = self._grid(pair, method)
             state: dict[str, Any] = {"beta_grid": list(grid), "candidates": []}
+            if b.select_by != "final":  # only then, so earlier selections read as before
+                state["select_by"] = b.select_by
             self.selection.setdefault(pair, {})[method] = state
             tuning: dict[tuple[float, int], list[Job]] = {}
             tried = list(grid)
@@ -510,7 +516,7 @@ class ProtocolPlan:
                         ]
                         for job in tuning[(beta, 0)]:
                             add(job)
-                beta_candidates = _candidates(tuning, results)
+                beta_candidates = _candidates(tuning, results, preset.metric, b.select_by)
                 state["candidates"] = [dataclasses.asdict(c) for c in beta_candidates]
                 if len(beta_candidates) < len(tried):
                     break
@@ -542,8 +548,9 @@ class ProtocolPlan:
                 ]
                 for job in tuning[(chosen_beta, init)]:
                     add(job)
-            init_candidates = [c for c in _candidates(tuning, results) if c.beta == chosen_beta]
-            state["candidates"] = [dataclasses.asdict(c) for c in _candidates(tuning, results)]
+            scored = _candidates(tuning, results, preset.metric, b.select_by)
+            init_candidates = [c for c in scored if c.beta == chosen_beta]
+            state["candidates"] = [dataclasses.asdict(c) for c in scored]
             if len(init_candidates) < b.model_inits:
                 continue
             chosen_init = _best(init_candidates, preset.metric_resolution).init
@@ -636,19 +643,37 @@ class ProtocolPlan:
 
 
 def _candidates(
-    groups: Mapping[tuple[float, int], Sequence[Job]], results: Mapping[str, Any]
+    groups: Mapping[tuple[float, int], Sequence[Job]],
+    results: Mapping[str, Any],
+    metric: str,
+    select_by: str = "final",
 ) -> list[Candidate]:
-    """The candidates whose tuning runs have all finished, in the groups' order."""
+    """The candidates whose tuning runs have all finished, in the groups' order, each
+    scored by ``select_by`` (:attr:`~pved.config.ProtocolBudget.select_by`) of ``metric``."""
     out: list[Candidate] = []
     for (beta, init), jobs in groups.items():
         if not all(j.key in results for j in jobs):
             continue
-        pair = jobs[0].kwargs["pair"]
-        metric = get_preset(pair).metric
-        scores = tuple(float(results[j.key][f"final/{metric}"]) for j in jobs)
+        if select_by == "auc":
+            scores = tuple(_curve_area(j, metric) for j in jobs)
+        else:
+            scores = tuple(float(results[j.key][f"final/{metric}"]) for j in jobs)
         returns = tuple(float(results[j.key]["final/return_mean"]) for j in jobs)
         out.append(Candidate(beta=beta, init=init, scores=scores, returns=returns))
     return out
+
+
+def _curve_area(job: Job, metric: str) -> float:
+    """The normalised area under a finished tuning run's learning curve of ``metric``
+    (:func:`pved.analysis.run_curves.auc`), read from its ``metrics.jsonl``."""
+    assert job.run_dir is not None  # a transfer job always has its run directory
+    path = job.run_dir / "metrics.jsonl"
+    if not path.is_file():
+        raise PvedError(f"{job.key}: no learning curve to score its area ({path} is missing)")
+    steps, values = read_eval_points(path, f"eval/{metric}")
+    if not steps.size:
+        raise PvedError(f"{job.key}: no eval/{metric} points in {path}")
+    return auc(steps, values)
 
 
 def plan_entry(protocol_dir: Path, key: str) -> Any:

@@ -360,6 +360,13 @@ class ShapedBatchedEnv(BatchedEnv):
             self._guide = guide(self.shaping, space.low, space.high, self.num_envs)
         return self._guide
 
+    def guide_context(self) -> np.ndarray | None:
+        """The guide's context rows (N, ·) at the current observations: what the next
+        :meth:`step` carries in ``info`` (the prior form's: the decoded prior action);
+        None for a reward form. Read by ``pved prior-policy`` to act with the prior."""
+        guide = self.action_guide
+        return None if guide is None else guide.context(self._obs, self._episode, self._t)
+
     def set_mean_actions(self, mean: np.ndarray) -> None:
         """The policy's mean actions (N, act_dim) at the current observations, which the
         next :meth:`step` encodes when the shaping's action is ``"mean"``; pved's PPO
