@@ -293,7 +293,9 @@ def ppo_final_point(pairs: dict[str, PairSummary], pair: str) -> float | str:
     return last
 
 
-def _scores(pairs: dict[str, PairSummary], pair: str, method: str, score: str) -> np.ndarray | str:
+def run_scores(
+    pairs: dict[str, PairSummary], pair: str, method: str, score: str
+) -> np.ndarray | str:
     """Per-run ``score`` (final, or one of
     :data:`pved.analysis.run_curves.CURVE_SCORES`) of ``method`` on ``pair`` as (runs,),
     or the reason there are none."""
@@ -385,7 +387,7 @@ class Judge:
         "seeds", "sources", "mean", "mean_ci"}``, or the reason there is none."""
         key = (pair, method, score)
         if key not in self._means:
-            x = _scores(self.pairs, pair, method, score)
+            x = run_scores(self.pairs, pair, method, score)
             self._means[key] = (
                 x
                 if isinstance(x, str)
@@ -424,7 +426,7 @@ class Judge:
         reason it cannot be computed."""
         key = (pair, a, b, score, bars, group_bars)
         if key not in self._diffs:
-            xa, xb = _scores(self.pairs, pair, a, score), _scores(self.pairs, pair, b, score)
+            xa, xb = run_scores(self.pairs, pair, a, score), run_scores(self.pairs, pair, b, score)
             if isinstance(xa, str) or isinstance(xb, str):
                 self._diffs[key] = xa if isinstance(xa, str) else str(xb)
             else:
@@ -460,7 +462,7 @@ class Judge:
     def margin(self, pair: str) -> tuple[float, float] | str:
         """(margin, oracle's mean final) of ``pair``: :data:`MARGIN_FRACTION` of |the
         oracle's mean final score|; or the reason there is none."""
-        oracle = _scores(self.pairs, pair, "oracle", "final")
+        oracle = run_scores(self.pairs, pair, "oracle", "final")
         if isinstance(oracle, str):
             return f"{oracle}: no scale for the margin"
         mean = float(oracle.mean())
@@ -562,7 +564,7 @@ class Judge:
 
     def _ppo_vs_oracle(self, pair: str, learns: bool) -> dict[str, Any]:
         text = "ppo still learns" if learns else "ppo fails completely"
-        oracle = _scores(self.pairs, pair, "oracle", "final")
+        oracle = run_scores(self.pairs, pair, "oracle", "final")
         bar = FAIL_FRACTION * float(oracle.mean()) if not isinstance(oracle, str) else 0.0
         part, d = self._part(
             text, text.removeprefix("ppo "), pair, "ppo", "oracle", "final", group_bars=(bar,)

@@ -31,6 +31,7 @@ from pved.analysis.judge import (
     PairSummary,
     load_pairs,
 )
+from pved.analysis.power import power_rows, power_table
 from pved.analysis.scoreboard import AHEAD, load_merged, pair_row
 from pved.analysis.transfer_measures import INSIDE_AA, method_measures
 from pved.errors import PvedError
@@ -596,6 +597,13 @@ def finals(rec: Records, page: str, directory: str) -> str:
     return _table(header, rows)
 
 
+def power(rec: Records, page: str, *directories: str) -> str:
+    """The difference each count of runs can decide on each pair, from PPO's spread in
+    ``directories`` (:mod:`pved.analysis.power`)."""
+    pairs = load_pairs([rec.path(d) for d in directories])
+    return power_table(power_rows(pairs))
+
+
 TABLES: dict[str, Callable[..., str]] = {
     "intervals": intervals_line,
     "claims-line": claims_line,
@@ -609,5 +617,6 @@ TABLES: dict[str, Callable[..., str]] = {
     "screens-64": screens_64,
     "verdicts": pair_verdicts,
     "finals": finals,
+    "power": power,
 }
 """The tables a marker can name: NAME -> a function of (records, page, *ARGS)."""

@@ -175,6 +175,28 @@ def add_bound(v: Verbs) -> None:
     p.set_defaults(func=_cmd_bound)
 
 
+def _cmd_power(args: argparse.Namespace) -> None:
+    from pved.analysis.judge import load_pairs
+    from pved.analysis.power import power_rows, power_table
+    from pved.errors import PvedError
+
+    if any(n < 1 for n in args.runs):
+        raise PvedError(f"--runs must be positive counts, got {args.runs}")
+    print(power_table(power_rows(load_pairs(args.protocols), args.runs)))
+
+
+def add_power(v: Verbs) -> None:
+    sub = v.sub
+
+    p = sub.add_parser(
+        "power",
+        help="the smallest difference from PPO that N runs a method would find (80% power)",
+    )
+    p.add_argument("protocols", nargs="+", type=Path, metavar="DIR", help="protocol directories")
+    p.add_argument("--runs", nargs="+", type=int, default=[15, 45, 81], help="runs a method")
+    p.set_defaults(func=_cmd_power)
+
+
 def _cmd_prior_policy(args: argparse.Namespace) -> None:
     from pved.diagnostics.prior_policy import prior_policy
 
@@ -573,6 +595,7 @@ VERBS = (
     add_tsne,
     add_bound,
     add_prior_policy,
+    add_power,
     add_audit_shaping,
     add_audit_likelihood,
     add_video,
