@@ -100,9 +100,11 @@ SCREENS = (
 SCREENS_64 = (
     ("reacher", "pved-prior", "reacher-screen"),
     ("reacher", "pved-align", "reacher-screen-align"),
+    ("reacher", "pved-prior", "reacher-screen-auc"),
+    ("reacher", "pved-align", "reacher-screen-auc"),
 )
-"""Issue 64's screens at the ``screen`` budget (seeds no other budget runs): (pair,
-method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
+"""Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
+runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
 PAPER_ORDER = ("walker-hopper", "jaco-fetch", "reacher", "humanoid-ant")
 """The main table's rows: where transfer works first."""
 EQ10 = (("reacher", "quick"), ("humanoid-ant", "quick"), ("humanoid-ant", "paper"))
@@ -530,7 +532,13 @@ def screens_64(rec: Records, page: str) -> str:
     for pair, method, directory in SCREENS_64:
         pairs, judge = rec.judge(directory)
         cells = method_measures({pair: pairs[pair]}, method, judge)["pairs"][pair]
-        line = [f"{pair} ({_unit(pairs[pair].metric)})", f"`{method}`"]
+        entry = pairs[pair].methods[method]
+        chosen_by = "area" if pairs[pair].budget == "screen-auc" else "final"
+        line = [
+            f"{pair} ({_unit(pairs[pair].metric)})",
+            f"`{method}`",
+            f"{entry.get('beta', '?'):g}, {entry.get('init', '?')} ({chosen_by})",
+        ]
         for measure in ("final", "auc"):
             c = cells[measure]
             if "reason" in c:
@@ -551,7 +559,7 @@ def screens_64(rec: Records, page: str) -> str:
                 verdict,
             ]
         rows.append(line)
-    header = ["pair (metric)", "method"]
+    header = ["pair (metric)", "method", "β, init (chosen by)"]
     for measure in ("final", "area under the curve"):
         header += [f"{measure}: method vs PPO", "− PPO [95% CI]", "A/A gap", "standing"]
     return _table(header, rows)

@@ -481,7 +481,12 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
             )
         lines.append("")
         for method, state in summary["selection"].get(pair, {}).items():
-            lines.append(f"Selection of {method} (mean {metric} over the tuning seeds):")
+            scored = (
+                f"area under the learning curve of {metric}"
+                if state.get("select_by") == "auc"
+                else metric
+            )
+            lines.append(f"Selection of {method} (mean {scored} over the tuning seeds):")
             lines.append("")
             where = state.get("selected_in")
             if where:
