@@ -665,8 +665,7 @@ def transfer(
     name, env_kwargs = spec.pair.target_env
     info_keys = spec.pair.preset.eval_info_keys
     eval_fn = _eval_fn(name, spec.eval_episodes, 10**6 + seed, env_kwargs, info_keys=info_keys)
-    run.start()
-    policy = train_ppo(
+    policy = train_ppo(  # starts the run (Run.start) before its first step
         env,
         spec.ppo,
         run,
