@@ -268,3 +268,17 @@ def test_a_published_protocol_comes_back_finished(
     (published / "summary.json").write_text("{not json")
     with pytest.raises(PvedError, match="is not a protocol summary"):
         restore_archive(published, tmp_path / "elsewhere")
+
+
+def test_the_summary_says_when_a_source_fails_its_own_task(tmp_path: Path) -> None:
+    from pved.protocol.driver import summarize
+
+    out = reacher_smoke_protocol(tmp_path / "proto")
+    banked = summarize(out)["pairs"]["reacher"]["source_success"]
+    bank_result = out / "runs/reacher/bank/Reacher3-Push/seed0/result.json"
+    assert banked == {"0": json.loads(bank_result.read_text())["success_rate"]}
+    # a source whose bank never succeeds is named as one that fails its own task
+    atomic_write_json(bank_result, {**json.loads(bank_result.read_text()), "success_rate": 0.0})
+    summarize(out)
+    text = (out / "summary.md").read_text()
+    assert "(their banks): 0: 0.00 (fails its own task)." in text

@@ -376,6 +376,9 @@ def _summarize(
             methods[method].update(reach)
         mark_summary(out, methods)  # pre-registered or exploratory (preregistration.py)
         summary["pairs"][pair] = {"metric": metric, "methods": methods}
+        banked = _source_success(plan, pair) if metric == "success_rate" else {}
+        if banked:  # only then, so summaries without banks read as before
+            summary["pairs"][pair]["source_success"] = banked
         every_run.extend(fp for m in methods.values() for fp in _each_run(m))
         if panel is not None:
             panels.append(panel)
@@ -388,6 +391,20 @@ def _summarize(
     atomic_write_json(out / "summary.json", summary)
     atomic_write_bytes(out / "summary.md", _markdown(summary, plan).encode())
     return summary, panels
+
+
+def _source_success(plan: ProtocolPlan, pair: str) -> dict[str, float]:
+    """Each source policy's success on the target task, as its bank's rollouts measured it
+    (``build_bank``'s result), by source index; the banks not made yet are left out. A
+    source that fails its own task has nothing to transfer (issue 64: reacher's source 2)."""
+    out: dict[str, float] = {}
+    for k in range(plan.budget.source_policies):
+        result = plan._bank_path(pair, k).parent / "result.json"
+        if result.is_file():
+            rate = json.loads(result.read_text()).get("success_rate")
+            if isinstance(rate, int | float):
+                out[str(k)] = float(rate)
+    return out
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -480,6 +497,13 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
                 f"{reach[0]} | {reach[1]} | {beta} | {init} | {shaping} | {env_reward} |"
             )
         lines.append("")
+        banked = info.get("source_success")
+        if banked:
+            rates = ", ".join(
+                f"{k}: {_fmt(v, 2)}{' (fails its own task)' if v == 0 else ''}"
+                for k, v in banked.items()
+            )
+            lines += [f"Source policies' success on the target task (their banks): {rates}.", ""]
         for method, state in summary["selection"].get(pair, {}).items():
             scored = (
                 f"area under the learning curve of {metric}"
