@@ -1429,3 +1429,34 @@ def test_screen_auc_chooses_by_the_area_where_screen_chooses_by_the_final(tmp_pa
     (groups[(0.1, 0)][0].run_dir / "metrics.jsonl").unlink()
     with pytest.raises(PvedError, match="no learning curve"):
         _candidates(groups, results, "success_rate", "auc")
+
+
+def test_a_trained_source_that_fails_its_own_task_is_passed_over(tmp_path: Path) -> None:
+    # reacher ships one Push policy (seed 0); sources 1 and 2 are trained, seeds 1 and 2
+    plan = ProtocolPlan(["reacher"], ["pved"], "quick", tmp_path / "out")
+
+    def bank_source(jobs: list[Job]) -> tuple[str, ...]:
+        return next(j for j in jobs if j.key == "reacher/bank/src2").deps
+
+    def finish(seed: int, rate: float) -> None:
+        run = plan.runs / f"reacher/policy/Reacher3-Push/seed{seed}"
+        run.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(run / "result.json", {"eval/success_rate": rate})
+
+    assert bank_source(plan.expand({})) == ("policy/Reacher3-Push/seed2",)
+    finish(2, 1.0)  # a policy that does its task stays
+    assert bank_source(plan.expand({})) == ("policy/Reacher3-Push/seed2",)
+    finish(2, 0.0)  # one that never succeeds gives its place to the next seed
+    jobs = plan.expand({})
+    assert bank_source(jobs) == ("policy/Reacher3-Push/seed3",)
+    bank = next(j for j in jobs if j.key == "reacher/bank/src2")
+    assert Path(bank.kwargs["source_policy"]).parent.name == "seed3"
+    finish(1, 0.2)  # source 1 too: sources 1 and 2 are now seeds 3 and 4
+    jobs = plan.expand({})
+    assert [next(j for j in jobs if j.key == f"reacher/bank/src{k}").deps for k in (1, 2)] == [
+        ("policy/Reacher3-Push/seed3",),
+        ("policy/Reacher3-Push/seed4",),
+    ]
+    for seed in range(3, 9):  # at most five passed over, then the next seed as it is
+        finish(seed, 0.0)
+    assert bank_source(plan.expand({})) == ("policy/Reacher3-Push/seed7",)

@@ -76,8 +76,10 @@ def indexed_policy(
     the first pair the agent is in): where the pair's spec says ``pretrained``, the
     shipped ones in seed order (a seed that missed its bar is not shipped); where it
     names a file (a user's own policy, an SB3 ``.zip``), that file as policy 0; then runs
-    under ``runs`` that train the seeds not taken, 0, 1, ... Returns (policy file, seed,
-    whether it is there already, shipped or given)."""
+    under ``runs`` that train the seeds not taken, 0, 1, ..., passing over a seed whose run
+    has finished below :data:`SOURCE_BAR` (the planner is asked again after every finished
+    job, so the jobs that wait on that policy move to the next seed before they start).
+    Returns (policy file, seed, whether it is there already, shipped or given)."""
     preset = preset_for_agent(agent) if pair is None else pair.preset
     choice = preset.agent_env(agent, task).policy
     shipped = shipped_seeds(agent, task) if choice == PRETRAINED else []
@@ -87,10 +89,38 @@ def indexed_policy(
         if index == 0:
             return Path(choice), 0, True
         shipped = [0]  # the file stands for seed 0; a budget's further policies are trained
-    unshipped = (s for s in itertools.count() if s not in shipped)
-    seed = next(itertools.islice(unshipped, index - len(shipped), None))
-    run_dir = run_path(runs, preset.name, "policy", f"{agent}-{task}", seed)
-    return run_dir / "policy.pt", seed, False
+    # the trained seeds in order, passing over one that has finished below the bar
+    wanted, passed_over = index - len(shipped), 0
+    for seed in (s for s in itertools.count() if s not in shipped):
+        run_dir = run_path(runs, preset.name, "policy", f"{agent}-{task}", seed)
+        if passed_over < MAX_PASSED_OVER and _below_bar(run_dir, preset.metric):
+            passed_over += 1
+            continue
+        if wanted == 0:
+            return run_dir / "policy.pt", seed, False
+        wanted -= 1
+    raise AssertionError("unreachable: the seeds never end")
+
+
+SOURCE_BAR = 0.5
+"""A policy the protocol trains is used only where its own evaluation succeeds at least
+this often (pairs whose metric is a success rate; the shipped policies had their own
+bars): a source that fails its own task has nothing to transfer (issue 64: reacher's
+trained source 2 never succeeded at Push). A seed below it is passed over for the next."""
+MAX_PASSED_OVER = 5
+"""Seeds of one agent and task passed over at most; past them the next seed is used as it
+is (the summary names a source that fails its own task)."""
+
+
+def _below_bar(run_dir: Path, metric: str) -> bool:
+    """Whether the policy run in ``run_dir`` has finished with its own evaluation's
+    success rate below :data:`SOURCE_BAR` (False while it is not finished, and for a
+    metric that is not a success rate)."""
+    if metric != "success_rate":
+        return False
+    result = read_job_result(run_dir)
+    rate = result.get("eval/success_rate") if isinstance(result, dict) else None
+    return isinstance(rate, int | float) and rate < SOURCE_BAR
 
 
 @dataclass(frozen=True)
