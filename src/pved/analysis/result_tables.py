@@ -102,6 +102,8 @@ SCREENS_64 = (
     ("reacher", "pved-align", "reacher-screen-align"),
     ("reacher", "pved-prior", "reacher-screen-auc"),
     ("reacher", "pved-align", "reacher-screen-auc"),
+    ("reacher", "pved-prior", "reacher-screen-auc-bar"),
+    ("reacher", "pved-align", "reacher-screen-auc-bar"),
 )
 """Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
 runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
@@ -537,6 +539,7 @@ def screens_64(rec: Records, page: str) -> str:
         line = [
             f"{pair} ({_unit(pairs[pair].metric)})",
             f"`{method}`",
+            f"[{directory}]({_link(page, f'{RECORDS}/{directory}/summary.md')})",
             f"{entry.get('beta', '?'):g}, {entry.get('init', '?')} ({chosen_by})",
         ]
         for measure in ("final", "auc"):
@@ -559,7 +562,7 @@ def screens_64(rec: Records, page: str) -> str:
                 verdict,
             ]
         rows.append(line)
-    header = ["pair (metric)", "method", "β, init (chosen by)"]
+    header = ["pair (metric)", "method", "record", "β, init (chosen by)"]
     for measure in ("final", "area under the curve"):
         header += [f"{measure}: method vs PPO", "− PPO [95% CI]", "A/A gap", "standing"]
     return _table(header, rows)
