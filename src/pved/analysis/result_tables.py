@@ -540,7 +540,8 @@ def screens_64(rec: Records, page: str) -> str:
             f"{pair} ({_unit(pairs[pair].metric)})",
             f"`{method}`",
             f"[{directory}]({_link(page, f'{RECORDS}/{directory}/summary.md')})",
-            f"{entry.get('beta', '?'):g}, {entry.get('init', '?')} ({chosen_by})",
+            f"{'–' if entry.get('beta') is None else format(entry['beta'], 'g')}, "
+            f"{entry.get('init', '–')} ({chosen_by})",
         ]
         for measure in ("final", "auc"):
             c = cells[measure]

@@ -26,6 +26,7 @@ from pved.errors import PvedError
 from pved.models.train import shared_subspace_collapsed
 from pved.protocol.plan import (
     PLAN_FILE,
+    SOURCE_BAR,
     ProtocolPlan,
     finished_results,
     fixed_selections,
@@ -500,7 +501,7 @@ def _markdown(summary: Mapping[str, Any], plan: ProtocolPlan) -> str:
         banked = info.get("source_success")
         if banked:
             rates = ", ".join(
-                f"{k}: {_fmt(v, 2)}{' (fails its own task)' if v == 0 else ''}"
+                f"{k}: {_fmt(v, 2)}{' (fails its own task)' if v < SOURCE_BAR else ''}"
                 for k, v in banked.items()
             )
             lines += [f"Source policies' success on the target task (their banks): {rates}.", ""]
