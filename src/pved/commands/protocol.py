@@ -306,6 +306,56 @@ def add_claims(v: Verbs) -> None:
     p.set_defaults(func=_cmd_claims)
 
 
+def _cmd_choose(args: argparse.Namespace) -> None:
+    import json
+
+    from pved.errors import PvedError
+    from pved.protocol.choose import (
+        check_registered_budget,
+        choice_json,
+        choice_table,
+        choose,
+        write_preregistration,
+    )
+
+    # what the file would be refused for is refused before the screens are judged
+    if (args.write is None) != (args.budget is None):
+        raise PvedError("--write and --budget go together (the file registers one budget)")
+    if args.write is not None:
+        check_registered_budget(args.budget)
+        if args.write.exists():
+            raise PvedError(
+                f"--write {args.write}: exists; a pre-registration is never overwritten"
+            )
+        if not args.write.parent.is_dir():
+            raise PvedError(f"--write {args.write}: no directory {args.write.parent}")
+    choice = choose(args.dirs, args.candidates or ())
+    print(json.dumps(choice_json(choice), indent=2) if args.json else choice_table(choice))
+    if args.write is not None:
+        pairs = args.pairs or [p for p in choice.standings.get(choice.winner or "", {})]
+        print(f"wrote {write_preregistration(choice, args.write, args.budget, pairs)}")
+
+
+def add_choose(v: Verbs) -> None:
+    p = v.sub.add_parser(
+        "choose",
+        help="issue 64's rule: which method beyond the paper goes to the paper's budget",
+        description="Apply the pre-registered rule (docs/decisions/protocol.md) to one "
+        "finished screen-auc protocol per pair: a candidate behind PPO in final score on "
+        "any pair is out; of the rest the one ahead of PPO in area under the learning "
+        "curve on the most pairs goes, ties to the larger mean area difference in units "
+        "of each pair's A/A gap. With --write, the winner's beta and init per pair, as "
+        "its screens chose them, go to a pre-registration file.",
+    )
+    p.add_argument("dirs", nargs="+", type=Path, help="screen-auc protocol directories")
+    p.add_argument("--candidates", nargs="+", metavar="METHOD", help="default: all screened")
+    p.add_argument("--json", action="store_true", help="print the choice as JSON")
+    p.add_argument("--write", type=Path, metavar="FILE", help="pre-registration file to write")
+    p.add_argument("--budget", help="the paper budget the file registers (paper, paper-wide)")
+    p.add_argument("--pairs", nargs="+", metavar="PAIR", help="pairs it registers (default: all)")
+    p.set_defaults(func=_cmd_choose)
+
+
 def _cmd_demo(args: argparse.Namespace) -> None:
     import dataclasses
 
@@ -379,6 +429,7 @@ VERBS = (
     add_archive,
     add_plot,
     add_claims,
+    add_choose,
     add_demo,
     add_fingerprint,
 )

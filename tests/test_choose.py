@@ -1,0 +1,179 @@
+"""Issue 64's rule (``pved choose``): rules 1-4 on screens built to tell each rule apart,
+and the pre-registration file it writes read back by the protocol's own checks."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from pved.analysis.judge import FOUR
+from pved.errors import PvedError
+from pved.protocol.choose import choose, preregistration_text, write_preregistration
+from pved.protocol.preregistration import _check_design, read_file
+
+STEPS = [0, 1000, 2000, 3000, 4000]
+PPO = np.linspace(0.0, 0.5, len(STEPS))
+
+
+def runs(offset: np.ndarray | float, n: int = 6) -> list[list[float]]:
+    """``n`` runs of PPO's curve plus ``offset`` (a number or a curve), each moved a
+    little (±0.005), so every interval is narrow."""
+    return [list(PPO + offset + o) for o in np.linspace(-0.005, 0.005, n)]
+
+
+def screen(
+    root: Path, pair: str, methods: dict[str, list[list[float]]], budget: str = "screen-auc"
+) -> Path:
+    """A finished protocol directory of one pair whose runs have these curves."""
+    root.mkdir(parents=True)
+    entries: dict[str, Any] = {}
+    for method, curves in methods.items():
+        entry: dict[str, Any] = {"runs": []}
+        for i, curve in enumerate(curves):
+            key = f"{pair}/transfer/{method}/seed{i}"
+            run_dir = root / "runs" / key
+            run_dir.mkdir(parents=True)
+            rows = [{"step": s, "eval/score": v} for s, v in zip(STEPS, curve, strict=True)]
+            (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+            entry["runs"].append({"key": key, "seed": i, "score": curve[-1]})
+        if method.startswith("pved"):
+            entry.update(beta=0.1 if method == "pved-prior" else 1.0, init=len(pair) % 3)
+        entries[method] = entry
+    summary = {"budget": budget, "pairs": {pair: {"metric": "score", "methods": entries}}}
+    (root / "summary.json").write_text(json.dumps(summary))
+    return root
+
+
+def screens(
+    root: Path, prior: dict[str, Any], align: dict[str, Any], aa: dict[str, float]
+) -> list[Path]:
+    """One screen per pair: the candidates' offsets from PPO, ppo-aa PPO plus ``aa``."""
+    return [
+        screen(
+            root / pair,
+            pair,
+            {
+                "ppo": runs(0.0),
+                "ppo-aa": runs(aa[pair]),
+                "pved-prior": runs(prior[pair]),
+                "pved-align": runs(align[pair]),
+            },
+        )
+        for pair in FOUR
+    ]
+
+
+def late_drop(early: float, last: float) -> np.ndarray:
+    """Ahead by ``early`` at every point but the last, which is ``last`` from PPO's."""
+    curve = np.full(len(STEPS), early)
+    curve[-1] = last
+    return curve
+
+
+def test_a_candidate_behind_in_final_anywhere_is_out_however_far_ahead_in_area(
+    tmp_path: Path,
+) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    # align ahead in area everywhere, but its final behind PPO's on jaco-fetch; prior
+    # ahead on two pairs only and level elsewhere
+    align = dict.fromkeys(FOUR, 0.2) | {"jaco-fetch": late_drop(0.3, -0.1)}
+    prior = {p: (0.1 if p in FOUR[:2] else 0.0) for p in FOUR}
+    c = choose(screens(tmp_path, prior, align, aa))
+    assert c.out("pved-align") == ["jaco-fetch"] and c.ahead("pved-align") == 4
+    assert c.out("pved-prior") == [] and c.ahead("pved-prior") == 2
+    assert c.winner == "pved-prior" and "rule 3" in c.why
+
+
+def test_a_tie_goes_to_the_larger_mean_difference_in_units_of_each_pairs_aa_noise(
+    tmp_path: Path,
+) -> None:
+    # both ahead on all four; align's raw differences are larger (mean 0.23 against
+    # 0.1), prior's are larger in A/A units: walker-hopper's A/A noise is 20x smaller
+    aa = dict.fromkeys(FOUR, 0.2) | {"walker-hopper": 0.01}
+    prior = dict.fromkeys(FOUR, 0.1)
+    align = dict.fromkeys(FOUR, 0.3) | {"walker-hopper": 0.02}
+    c = choose(screens(tmp_path, prior, align, aa))
+    assert c.ahead("pved-prior") == c.ahead("pved-align") == 4
+    assert c.tie_score("pved-prior") > c.tie_score("pved-align")
+    assert c.winner == "pved-prior" and "rule 4" in c.why
+    units = c.standings["pved-prior"]["walker-hopper"].area_units
+    assert units == pytest.approx(0.1 / 0.015, rel=0.2)
+
+
+def test_no_candidate_goes_before_every_pair_is_screened_and_nothing_is_registered(
+    tmp_path: Path,
+) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    dirs = screens(tmp_path, dict.fromkeys(FOUR, 0.2), dict.fromkeys(FOUR, 0.0), aa)
+    c = choose(dirs[:3])
+    assert c.winner is None and c.missing == (FOUR[3],) and "rule 1" in c.why
+    with pytest.raises(PvedError, match="no method to pre-register"):
+        preregistration_text(c, "paper", list(FOUR[:3]))
+    # a candidate the screens do not all hold cannot go either
+    only = screen(
+        tmp_path / "x", FOUR[3], {"ppo": runs(0.0), "ppo-aa": runs(0.05), "pved-prior": runs(0.2)}
+    )
+    c = choose([*dirs[:3], only])
+    assert not c.screened_everywhere("pved-align") and c.winner == "pved-prior"
+
+
+def test_screens_the_rule_does_not_read_are_refused(tmp_path: Path) -> None:
+    old = screen(
+        tmp_path / "a",
+        "reacher",
+        {"ppo": runs(0.0), "ppo-aa": runs(0.0), "pved-prior": runs(0.1)},
+        budget="screen",
+    )
+    with pytest.raises(PvedError, match="'screen' protocol"):
+        choose([old])
+    no_aa = screen(tmp_path / "b", "reacher", {"ppo": runs(0.0), "pved-prior": runs(0.1)})
+    with pytest.raises(PvedError, match="no ppo-aa runs"):
+        choose([no_aa])
+    paper = screen(
+        tmp_path / "c", "reacher", {"ppo": runs(0.0), "ppo-aa": runs(0.0), "pved": runs(0.1)}
+    )
+    with pytest.raises(PvedError, match="beyond"):
+        choose([paper])
+
+
+def test_the_file_registers_each_screens_choice_and_the_protocol_reads_it_back(
+    tmp_path: Path,
+) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    dirs = screens(tmp_path / "s", dict.fromkeys(FOUR, 0.2), dict.fromkeys(FOUR, 0.0), aa)
+    c = choose(dirs)
+    assert c.winner == "pved-prior"
+    path = write_preregistration(
+        c, tmp_path / "prior.toml", "paper-wide", ["reacher", "jaco-fetch"]
+    )
+    data = read_file(path)
+    _check_design(path, data, ["reacher", "jaco-fetch"], "paper-wide")  # raises if not
+    assert data["method"] == "pved-prior" and data["tuning_budget"] == "screen-auc"
+    assert data["evaluation_seeds"] == 27 and data["source_policies"] == 3
+    for pair in ("reacher", "jaco-fetch"):
+        assert data["pairs"][pair]["beta"] == 0.1 and data["pairs"][pair]["init"] == len(pair) % 3
+    assert set(data["pairs"]) == {"reacher", "jaco-fetch"}
+    with pytest.raises(PvedError, match="never overwritten"):
+        write_preregistration(c, path, "paper", ["reacher"])
+    with pytest.raises(PvedError, match="paper's budgets"):
+        preregistration_text(c, "screen", ["reacher"])
+
+
+def test_the_cli_refuses_a_bad_budget_before_judging_and_writes_nothing(tmp_path: Path) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    dirs = screens(tmp_path / "s", dict.fromkeys(FOUR, 0.2), dict.fromkeys(FOUR, 0.0), aa)
+    target = tmp_path / "p.toml"
+    cmd = [sys.executable, "-m", "pved", "choose", *map(str, dirs), "--write", str(target)]
+    bad = subprocess.run([*cmd, "--budget", "quick"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "paper's budgets" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1 and not target.exists()
+    good = subprocess.run([*cmd, "--budget", "paper"], capture_output=True, text=True)
+    assert good.returncode == 0, good.stderr
+    assert "`pved-prior` goes to the paper's budget" in good.stdout and target.is_file()
+    assert set(read_file(target)["pairs"]) == set(FOUR)
