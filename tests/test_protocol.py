@@ -1096,6 +1096,9 @@ def test_the_paper_wide_budget_is_the_paper_protocol_with_more_evaluation_runs(
     # each paper run is in the wide plan under the same name and config: copied, not redone
     assert paper_runs.items() <= wide_runs.items()
     assert len(paper_runs) == 15 and len(wide_runs) == 81
+    # issue 64's 45 runs a method lie between the two: copied from either
+    mid = runs(ProtocolPlan(["walker-hopper"], ["ppo"], "paper-45", tmp_path / "45"))
+    assert paper_runs.items() <= mid.items() <= wide_runs.items() and len(mid) == 45
 
 
 def test_the_screen_budget_never_runs_a_seed_the_other_budgets_judge(tmp_path: Path) -> None:
@@ -1109,10 +1112,9 @@ def test_the_screen_budget_never_runs_a_seed_the_other_budgets_judge(tmp_path: P
         # a reference runs evaluation seed s as s, s+1, s+2; a shaped method as s, 3 times
         return {int(j.kwargs["seed"]) for j in plan.expand({})}
 
-    judged = set().union(*(seeds(b) for b in ("quick", "paper", "paper-wide")))
-    judged |= {
-        int(s) for b in ("quick", "paper", "paper-wide") for s in get_budget(b).evaluation_seeds
-    }
+    judged_budgets = ("quick", "paper", "paper-45", "paper-wide")
+    judged = set().union(*(seeds(b) for b in judged_budgets))
+    judged |= {int(s) for b in judged_budgets for s in get_budget(b).evaluation_seeds}
     screened = seeds("screen")
     assert len(screened) == 15 and not screened & judged
 

@@ -227,7 +227,7 @@ def test_compare_gives_the_measures_and_the_aa_check_with_aa_runs(tmp_path: Path
     )
 
 
-@pytest.mark.parametrize("budget", ["smoke", "quick", "paper", "paper-wide"])
+@pytest.mark.parametrize("budget", ["smoke", "quick", "paper", "paper-45", "paper-wide"])
 def test_the_aa_set_is_ppo_on_seeds_no_other_method_uses(tmp_path: Path, budget: str) -> None:
     from pved.config import get_budget
     from pved.protocol.plan import ProtocolPlan

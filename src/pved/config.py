@@ -346,6 +346,11 @@ BUDGETS: dict[str, ProtocolBudget] = {
     "paper-wide": ProtocolBudget(
         name="paper-wide", evaluation_seeds=WIDE_EVALUATION_SEEDS, steps_of="paper"
     ),
+    # issue 64's count where runs end near 0 or 1 (reacher, jaco-fetch): 3 sources x 15
+    # seeds = 45 runs a method, paper-wide's first 15 seeds, so its runs copy both ways
+    "paper-45": ProtocolBudget(
+        name="paper-45", evaluation_seeds=WIDE_EVALUATION_SEEDS[:15], steps_of="paper"
+    ),
 }
 
 

@@ -50,7 +50,8 @@ def add_protocol(v: Verbs) -> None:
     p.add_argument(
         "--budget",
         default="smoke",
-        help=f"{' | '.join(BUDGETS)} (paper-wide: 81 evaluation runs); default: %(default)s",
+        help=f"{' | '.join(BUDGETS)} (paper-45, paper-wide: 45, 81 evaluation runs); "
+        "default: %(default)s",
     )
     p.add_argument(
         "--methods", nargs="+", default=["pved", "ppo"], help=f"{methods} (default: pved ppo)"
@@ -351,7 +352,9 @@ def add_choose(v: Verbs) -> None:
     p.add_argument("--candidates", nargs="+", metavar="METHOD", help="default: all screened")
     p.add_argument("--json", action="store_true", help="print the choice as JSON")
     p.add_argument("--write", type=Path, metavar="FILE", help="pre-registration file to write")
-    p.add_argument("--budget", help="the paper budget the file registers (paper, paper-wide)")
+    p.add_argument(
+        "--budget", help="the paper budget the file registers (paper, paper-45, paper-wide)"
+    )
     p.add_argument("--pairs", nargs="+", metavar="PAIR", help="pairs it registers (default: all)")
     p.set_defaults(func=_cmd_choose)
 

@@ -15,7 +15,7 @@ file's (the file's β and init are the selection, or equal to ``--selection-from
 Without a valid file the protocol refuses to start, unless ``--exploratory`` is given:
 then X's results are marked ``exploratory`` in ``summary.json``, and ``pved claims`` and
 ``pved scoreboard`` print that label. Paper methods and the references are not gated;
-nor is any budget but the paper's (``paper``, ``paper-wide``).
+nor is any budget but the paper's (``paper``, ``paper-45``, ``paper-wide``).
 
 The file (TOML)::
 
@@ -66,7 +66,8 @@ exploratory) and of when their evaluation runs were first let start."""
 EXPLORATORY = "exploratory"
 PREREGISTERED = "pre-registered"
 PAPER_STEPS = "paper"
-"""The budgets gated: those whose runs are the paper's length (``paper``, ``paper-wide``)."""
+"""The budgets gated: those whose runs are the paper's length (``paper``, ``paper-45``,
+``paper-wide``)."""
 _FIELDS: dict[str, type | tuple[type, ...]] = {
     "method": str,
     "budget": str,
