@@ -79,8 +79,8 @@ def test_runs_of_one_seed_are_drawn_together(tmp_path: Path) -> None:
     two units to draw; as six independent seeds the interval of the mean is narrower."""
     flat = [0.0] * 5
     b = [make_run(tmp_path / "b", s, flat, 0.0) for s in (1, 2, 3)]
-    clustered = [
-        make_run(tmp_path / f"c{k}", seed, flat, float(seed == 1))
+    clustered = [  # three runs of each seed (their curves tell them apart from copies)
+        make_run(tmp_path / f"c{k}", seed, [0.01 * (k + 1), *flat[1:]], float(seed == 1))
         for k in range(3)
         for seed in (1, 2)
     ]
@@ -228,3 +228,22 @@ def test_cli_prints_the_table_and_writes_the_json(
     written = json.loads(out.read_text())
     assert np.isclose(written["diff"]["final"]["diff"], 0.5)
     assert written["groups"]["eq10"]["seeds"] == [1, 2]
+
+
+def test_pooled_runs_count_a_copied_run_once_and_never_in_both_groups(tmp_path: Path) -> None:
+    """Pooling PPO's runs of several protocol directories (issue 64's "pooled PPO-algorithm
+    runs"): a run one directory copied from another is one run, counted once."""
+    curve = [0.0, 0.2, 0.4, 0.6, 0.8]
+    for seed in (1, 2, 3):
+        make_run(tmp_path / "new", seed, curve, 1.0)
+        make_run(tmp_path / "ppo", seed, curve, 0.2 * seed)
+    for seed in (1, 2):  # another protocol's copies of two of them, and one run of its own
+        make_run(tmp_path / "other", seed, curve, 0.2 * seed)
+    make_run(tmp_path / "other", 4, curve, 0.5)
+    result = compare_runs([tmp_path / "new"], [tmp_path / "ppo", tmp_path / "other"])
+    pooled = result["groups"]["B"]
+    assert pooled["runs"] == 4 and pooled["copies"] == 2 and pooled["seeds"] == [1, 2, 3, 4]
+    assert pooled["final"]["mean"] == pytest.approx((0.2 + 0.4 + 0.6 + 0.5) / 4)
+    assert "counted once (B: 2)" in format_comparison(result)
+    with pytest.raises(PvedError, match="are one run, in both groups"):
+        compare_runs([tmp_path / "ppo"], [tmp_path / "other"])

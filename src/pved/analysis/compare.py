@@ -25,11 +25,15 @@ other seeds), the A/A check beside every difference: AA − B with its interval,
 "inside A/A noise" where |A − B| is no larger than the largest |difference| that interval
 admits; "no A/A set" without them.
 
+A group may pool the runs of several protocol directories (issue 64's "pooled PPO runs"):
+a run that one of them copied from another is counted once (:func:`distinct_runs`).
+
 Only files are read: each run's ``config.json``, ``result.json`` and ``metrics.jsonl``.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -83,6 +87,37 @@ def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
     if not found:
         raise PvedError(f"no finished transfer run under {', '.join(map(str, paths))}")
     return found
+
+
+def _run_identity(run_dir: Path) -> str:
+    """What makes a finished run the run it is: its config, its results (paths aside) and
+    its evaluation curve. A copy made by ``--stages-from`` or ``pved archive`` has all
+    three, elsewhere; runs of one config by two versions of the code differ in their
+    numbers."""
+    config = _read_json(run_dir / "config.json").get("config")
+    result = {k: v for k, v in _read_json(run_dir / "result.json").items() if k != "policy"}
+    curve = []
+    metrics = run_dir / "metrics.jsonl"
+    for line in metrics.read_text().splitlines() if metrics.is_file() else []:
+        row = json.loads(line) if line.strip() else {}
+        evals = {k: v for k, v in row.items() if k.startswith("eval/")}
+        if evals:
+            curve.append([row.get("step"), evals])
+    return json.dumps([config, result, curve], sort_keys=True, default=str)
+
+
+def distinct_runs(dirs: Sequence[Path]) -> tuple[list[Path], int]:
+    """``dirs`` with every copy of a run already among them left out, and how many were:
+    pooling the PPO runs of several protocol directories counts a run that one of them
+    copied from another once (:func:`_run_identity`)."""
+    kept: list[Path] = []
+    seen: set[str] = set()
+    for run_dir in dirs:
+        identity = _run_identity(run_dir)
+        if identity not in seen:
+            seen.add(identity)
+            kept.append(run_dir)
+    return kept, len(dirs) - len(kept)
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -205,12 +240,17 @@ def compare_runs(
     name_a, name_b = names
     if name_a == name_b:
         raise PvedError(f"the two groups need different names, got {name_a!r} twice")
-    dirs_a, dirs_b = find_transfer_runs(a), find_transfer_runs(b)
-    dirs_aa = find_transfer_runs(aa) if aa else []
+    dirs_a, copies_a = distinct_runs(find_transfer_runs(a))
+    dirs_b, copies_b = distinct_runs(find_transfer_runs(b))
+    dirs_aa = distinct_runs(find_transfer_runs(aa))[0] if aa else []
     for one, other in ((dirs_a, dirs_b), (dirs_a, dirs_aa), (dirs_b, dirs_aa)):
         both = {d.resolve() for d in one} & {d.resolve() for d in other}
         if both:
             raise PvedError(f"{sorted(both)[0]} is in both groups")
+        theirs = {_run_identity(d): d for d in other}
+        copy = next((d for d in one if _run_identity(d) in theirs), None)
+        if copy is not None:
+            raise PvedError(f"{copy} and {theirs[_run_identity(copy)]} are one run, in both groups")
     runs_a, runs_b = [_load_run(d) for d in dirs_a], [_load_run(d) for d in dirs_b]
     runs_aa = [_load_run(d) for d in dirs_aa]
     first = runs_a[0]
@@ -271,6 +311,8 @@ def compare_runs(
                     "seeds": [r["seed"] for r in g["runs"]],
                     "sources": g["sources"],
                     "fingerprints": made_under[0 if key == "a" else 1],
+                    # copies of a run given elsewhere in the group, left out
+                    "copies": copies_a if key == "a" else copies_b,
                 },
             )
             if score == "final":
@@ -410,6 +452,9 @@ def format_comparison(result: dict[str, Any]) -> str:
         f"{name_b}'s final ({result[f'{name_b}_final']:.3f}) |",
         "|---|---|---|---|---|---|",
     ]
+    copies = [
+        f"{n}: {result['groups'][n]['copies']}" for n in names if result["groups"][n].get("copies")
+    ]
     for name in names:
         g = result["groups"][name]
         lines.append(
@@ -417,6 +462,8 @@ def format_comparison(result: dict[str, Any]) -> str:
             f" | {g['early_mean']:.3f} | {g['drop_mean']:.3f} "
             f"| {reach(g[f'steps_to_{name_b}_final'])} |"
         )
+    if copies:
+        lines.append(f"\nCopies of a run given twice, counted once ({', '.join(copies)}).")
     lines.append("")
     for score in SCORES:
         d = result["diff"][score]
