@@ -189,3 +189,40 @@ def stock_reacher_spec(folder: Path, smoke_steps: int = 8192) -> Path:
     spec = folder / "stock-reacher.toml"
     spec.write_text(STOCK_REACHER_SPEC.format(smoke_steps=smoke_steps))
     return spec
+
+
+#: Evaluation steps of :func:`protocol_dir`'s runs.
+CURVE_STEPS = [0, 1000, 2000, 3000, 4000]
+
+
+def protocol_dir(
+    root: Path,
+    pairs: dict[str, dict[str, list[list[float]]]],
+    budget: str = "paper",
+    **marks: Any,
+) -> Path:
+    """A finished protocol directory of ``budget`` whose runs have these curves at
+    :data:`CURVE_STEPS` (metric ``score``; a method's final score is its curve's last
+    point); ``marks``: extra fields of a method's entry on every pair (``{"new":
+    {"exploratory": True}}``)."""
+    import json
+
+    root.mkdir(parents=True)
+    summary: dict[str, Any] = {"budget": budget, "pairs": {}}
+    for pair, methods in pairs.items():
+        entries: dict[str, Any] = {}
+        for method, curves in methods.items():
+            runs = []
+            for i, curve in enumerate(curves):
+                key = f"{pair}/transfer/{method}/seed{i}"
+                run_dir = root / "runs" / key
+                run_dir.mkdir(parents=True)
+                rows = [
+                    {"step": s, "eval/score": v} for s, v in zip(CURVE_STEPS, curve, strict=True)
+                ]
+                (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+                runs.append({"key": key, "seed": i, "score": curve[-1]})
+            entries[method] = {"runs": runs, **marks.get(method, {})}
+        summary["pairs"][pair] = {"metric": "score", "methods": entries}
+    (root / "summary.json").write_text(json.dumps(summary))
+    return root

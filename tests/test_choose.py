@@ -3,7 +3,6 @@ and the pre-registration file it writes read back by the protocol's own checks."
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -12,13 +11,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from helpers import CURVE_STEPS, protocol_dir
 from pved.analysis.judge import FOUR
 from pved.errors import PvedError
 from pved.protocol.choose import choose, preregistration_text, write_preregistration
 from pved.protocol.preregistration import _check_design, read_file
 
-STEPS = [0, 1000, 2000, 3000, 4000]
-PPO = np.linspace(0.0, 0.5, len(STEPS))
+PPO = np.linspace(0.0, 0.5, len(CURVE_STEPS))
 
 
 def runs(offset: np.ndarray | float, n: int = 6) -> list[list[float]]:
@@ -30,24 +29,11 @@ def runs(offset: np.ndarray | float, n: int = 6) -> list[list[float]]:
 def screen(
     root: Path, pair: str, methods: dict[str, list[list[float]]], budget: str = "screen-auc"
 ) -> Path:
-    """A finished protocol directory of one pair whose runs have these curves."""
-    root.mkdir(parents=True)
-    entries: dict[str, Any] = {}
-    for method, curves in methods.items():
-        entry: dict[str, Any] = {"runs": []}
-        for i, curve in enumerate(curves):
-            key = f"{pair}/transfer/{method}/seed{i}"
-            run_dir = root / "runs" / key
-            run_dir.mkdir(parents=True)
-            rows = [{"step": s, "eval/score": v} for s, v in zip(STEPS, curve, strict=True)]
-            (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-            entry["runs"].append({"key": key, "seed": i, "score": curve[-1]})
-        if method.startswith("pved"):
-            entry.update(beta=0.1 if method == "pved-prior" else 1.0, init=len(pair) % 3)
-        entries[method] = entry
-    summary = {"budget": budget, "pairs": {pair: {"metric": "score", "methods": entries}}}
-    (root / "summary.json").write_text(json.dumps(summary))
-    return root
+    """A finished protocol directory of one pair whose runs have these curves; each
+    candidate's selection: β 0.1 (``pved-prior``) or 1 (``pved-align``), init by pair."""
+    init = len(pair) % 3
+    marks = {"pved-prior": {"beta": 0.1, "init": init}, "pved-align": {"beta": 1.0, "init": init}}
+    return protocol_dir(root, {pair: methods}, budget, **marks)
 
 
 def screens(
@@ -71,7 +57,7 @@ def screens(
 
 def late_drop(early: float, last: float) -> np.ndarray:
     """Ahead by ``early`` at every point but the last, which is ``last`` from PPO's."""
-    curve = np.full(len(STEPS), early)
+    curve = np.full(len(CURVE_STEPS), early)
     curve[-1] = last
     return curve
 

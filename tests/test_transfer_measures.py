@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from helpers import protocol_dir
 from pved.analysis.judge import Judge, load_pairs
 from pved.analysis.run_curves import RECORD_FILE, auc, run_curve, steps_to_threshold
 
@@ -74,29 +75,6 @@ def test_a_published_record_gives_the_curves_and_without_it_there_are_none(
     without = load_pairs([summary_dir(tmp_path / "b", curves, record=False)])
     part = Judge(without).faster_early("reacher", "new", "ppo")
     assert part["verdict"] == "undecided" and part["reason"].startswith("no curves of run")
-
-
-def protocol_dir(root: Path, pairs: dict[str, dict[str, list[list[float]]]], **marks: Any) -> Path:
-    """A finished protocol directory whose runs have these curves at STEPS (a method's
-    final score is its curve's last point); ``marks``: extra fields of a method's entry
-    on every pair (``{"new": {"exploratory": True}}``)."""
-    root.mkdir(parents=True)
-    summary: dict[str, Any] = {"budget": "paper", "pairs": {}}
-    for pair, methods in pairs.items():
-        entries: dict[str, Any] = {}
-        for method, curves in methods.items():
-            runs = []
-            for i, curve in enumerate(curves):
-                key = f"{pair}/transfer/{method}/seed{i}"
-                run_dir = root / "runs" / key
-                run_dir.mkdir(parents=True)
-                rows = [{"step": s, "eval/score": v} for s, v in zip(STEPS, curve, strict=True)]
-                (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-                runs.append({"key": key, "seed": i, "score": curve[-1]})
-            entries[method] = {"runs": runs, **marks.get(method, {})}
-        summary["pairs"][pair] = {"metric": "score", "methods": entries}
-    (root / "summary.json").write_text(json.dumps(summary))
-    return root
 
 
 def rising(start: float, end: float, n: int = 6, spread: float = 0.02) -> list[list[float]]:
