@@ -3,6 +3,7 @@ and the pre-registration file it writes read back by the protocol's own checks."
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,10 @@ from pved.protocol.choose import choose, preregistration_text, write_preregistra
 from pved.protocol.preregistration import _check_design, read_file
 
 PPO = np.linspace(0.0, 0.5, len(CURVE_STEPS))
+#: Each screen's selection, different on every pair, so a file that wrote one pair's
+#: choice for another's would be caught.
+BETA = dict(zip(FOUR, (0.01, 0.1, 1.0, 3.0), strict=True))
+INIT = dict(zip(FOUR, (0, 1, 2, 1), strict=True))
 
 
 def runs(offset: np.ndarray | float, n: int = 6) -> list[list[float]]:
@@ -30,9 +35,12 @@ def screen(
     root: Path, pair: str, methods: dict[str, list[list[float]]], budget: str = "screen-auc"
 ) -> Path:
     """A finished protocol directory of one pair whose runs have these curves; each
-    candidate's selection: β 0.1 (``pved-prior``) or 1 (``pved-align``), init by pair."""
-    init = len(pair) % 3
-    marks = {"pved-prior": {"beta": 0.1, "init": init}, "pved-align": {"beta": 1.0, "init": init}}
+    candidate's selection: :data:`BETA` and :data:`INIT` of the pair (``pved-align``: ten
+    times the β)."""
+    marks = {
+        "pved-prior": {"beta": BETA[pair], "init": INIT[pair]},
+        "pved-align": {"beta": 10 * BETA[pair], "init": INIT[pair]},
+    }
     return protocol_dir(root, {pair: methods}, budget, **marks)
 
 
@@ -101,12 +109,28 @@ def test_no_candidate_goes_before_every_pair_is_screened_and_nothing_is_register
     assert c.winner is None and c.missing == (FOUR[3],) and "rule 1" in c.why
     with pytest.raises(PvedError, match="no method to pre-register"):
         preregistration_text(c, "paper", list(FOUR[:3]))
-    # a candidate the screens do not all hold cannot go either
+    # align ahead on the three pairs it was screened on, prior on the fourth alone: a
+    # candidate not screened everywhere cannot go, however far ahead
+    prior = dict.fromkeys(FOUR[:3], 0.0)
+    dirs = screens(tmp_path / "b", prior | {FOUR[3]: 0.0}, dict.fromkeys(FOUR, 0.2), aa)
     only = screen(
-        tmp_path / "x", FOUR[3], {"ppo": runs(0.0), "ppo-aa": runs(0.05), "pved-prior": runs(0.2)}
+        tmp_path / "x",
+        FOUR[3],
+        {"ppo": runs(0.0), "ppo-aa": runs(0.05), "pved-prior": runs(0.2)},
     )
     c = choose([*dirs[:3], only])
+    assert c.ahead("pved-align") == 3 and c.ahead("pved-prior") == 1
     assert not c.screened_everywhere("pved-align") and c.winner == "pved-prior"
+
+
+def test_when_every_candidate_is_behind_somewhere_all_stay_in(tmp_path: Path) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    behind = late_drop(0.3, -0.1)
+    prior = dict.fromkeys(FOUR, 0.0) | {"reacher": behind}
+    align = dict.fromkeys(FOUR, 0.2) | {"jaco-fetch": behind}
+    c = choose(screens(tmp_path, prior, align, aa))
+    assert c.out("pved-prior") == ["reacher"] and c.out("pved-align") == ["jaco-fetch"]
+    assert c.winner == "pved-align" and "every candidate behind" in c.why
 
 
 def test_screens_the_rule_does_not_read_are_refused(tmp_path: Path) -> None:
@@ -126,6 +150,17 @@ def test_screens_the_rule_does_not_read_are_refused(tmp_path: Path) -> None:
     )
     with pytest.raises(PvedError, match="beyond"):
         choose([paper])
+    odd = screen(tmp_path / "d", "reacher", {"ppo": runs(0.0), "ppo-aa": runs(0.0)})
+    summary = json.loads((odd / "summary.json").read_text())
+    summary["pairs"]["reacher"]["methods"]["ppo"].update(runs_planned=15, runs_finished=6)
+    (odd / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(PvedError, match="6 of 15 runs"):
+        choose([odd])
+    summary["pairs"] = {"my-arm": summary["pairs"]["reacher"]}
+    summary["pairs"]["my-arm"]["methods"]["ppo"].update(runs_finished=15)
+    (odd / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(PvedError, match="my-arm is not one of the rule's pairs"):
+        choose([odd])
 
 
 def test_the_file_registers_each_screens_choice_and_the_protocol_reads_it_back(
@@ -143,7 +178,10 @@ def test_the_file_registers_each_screens_choice_and_the_protocol_reads_it_back(
     assert data["method"] == "pved-prior" and data["tuning_budget"] == "screen-auc"
     assert data["evaluation_seeds"] == 27 and data["source_policies"] == 3
     for pair in ("reacher", "jaco-fetch"):
-        assert data["pairs"][pair]["beta"] == 0.1 and data["pairs"][pair]["init"] == len(pair) % 3
+        assert (data["pairs"][pair]["beta"], data["pairs"][pair]["init"]) == (
+            BETA[pair],
+            INIT[pair],
+        )
     assert set(data["pairs"]) == {"reacher", "jaco-fetch"}
     with pytest.raises(PvedError, match="never overwritten"):
         write_preregistration(c, path, "paper", ["reacher"])
@@ -157,7 +195,7 @@ def test_the_cli_refuses_a_bad_budget_before_judging_and_writes_nothing(tmp_path
     target = tmp_path / "p.toml"
     cmd = [sys.executable, "-m", "pved", "choose", *map(str, dirs), "--write", str(target)]
     bad = subprocess.run([*cmd, "--budget", "quick"], capture_output=True, text=True)
-    assert bad.returncode == 2 and "paper's budgets" in bad.stderr
+    assert bad.returncode == 2 and "paper's budgets" in bad.stderr and bad.stdout == ""
     assert len(bad.stderr.strip().splitlines()) == 1 and not target.exists()
     good = subprocess.run([*cmd, "--budget", "paper"], capture_output=True, text=True)
     assert good.returncode == 0, good.stderr

@@ -238,7 +238,11 @@ def test_pooled_runs_count_a_copied_run_once_and_never_in_both_groups(tmp_path: 
         make_run(tmp_path / "new", seed, curve, 1.0)
         make_run(tmp_path / "ppo", seed, curve, 0.2 * seed)
     for seed in (1, 2):  # another protocol's copies of two of them, and one run of its own
-        make_run(tmp_path / "other", seed, curve, 0.2 * seed)
+        copy = make_run(tmp_path / "other", seed, curve, 0.2 * seed)
+        # a copy's result names its own files, and a restored one where it came from
+        result = json.loads((copy / "result.json").read_text())
+        result.update(policy=str(copy / "policy.pt"), restored_from="archive/x")
+        (copy / "result.json").write_text(json.dumps(result))
     make_run(tmp_path / "other", 4, curve, 0.5)
     result = compare_runs([tmp_path / "new"], [tmp_path / "ppo", tmp_path / "other"])
     pooled = result["groups"]["B"]

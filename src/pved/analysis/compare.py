@@ -49,7 +49,7 @@ from pved.analysis.transfer_measures import INSIDE_AA, MEASURE_NAMES, NO_AA, aa_
 from pved.errors import PvedError
 from pved.provenance import count_fingerprints, fingerprint_mismatch, run_fingerprint
 from pved.record_paths import record_path
-from pved.runs import read_json
+from pved.runs import RESTORED_FROM, read_json
 from pved.spec import get_preset
 
 SCORES = ("final", "early", "drop")
@@ -89,13 +89,18 @@ def find_transfer_runs(paths: Sequence[Path]) -> list[Path]:
     return found
 
 
+#: What a copy of a run may hold differently in its ``result.json``: the paths of its
+#: artefacts (``pved.runs.repoint_result``) and where ``pved archive restore`` took it from.
+COPY_FIELDS = ("policy", "model", "dataset", "bank", RESTORED_FROM)
+
+
 def _run_identity(run_dir: Path) -> str:
-    """What makes a finished run the run it is: its config, its results (paths aside) and
-    its evaluation curve. A copy made by ``--stages-from`` or ``pved archive`` has all
-    three, elsewhere; runs of one config by two versions of the code differ in their
-    numbers."""
+    """What makes a finished run the run it is: its config, its results (less
+    :data:`COPY_FIELDS`) and its evaluation curve. A copy made by ``--stages-from`` or
+    restored by ``pved archive restore`` has all three, elsewhere; runs of one config by
+    two versions of the code differ in their numbers."""
     config = _read_json(run_dir / "config.json").get("config")
-    result = {k: v for k, v in _read_json(run_dir / "result.json").items() if k != "policy"}
+    result = {k: v for k, v in _read_json(run_dir / "result.json").items() if k not in COPY_FIELDS}
     curve = []
     metrics = run_dir / "metrics.jsonl"
     for line in metrics.read_text().splitlines() if metrics.is_file() else []:

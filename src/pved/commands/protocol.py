@@ -328,8 +328,6 @@ def _cmd_choose(args: argparse.Namespace) -> None:
             raise PvedError(
                 f"--write {args.write}: exists; a pre-registration is never overwritten"
             )
-        if not args.write.parent.is_dir():
-            raise PvedError(f"--write {args.write}: no directory {args.write.parent}")
     choice = choose(args.dirs, args.candidates or ())
     print(json.dumps(choice_json(choice), indent=2) if args.json else choice_table(choice))
     if args.write is not None:

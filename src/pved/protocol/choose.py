@@ -11,7 +11,8 @@ rule, as committed before any screen ran, with the amendment's budget:
 2. a candidate whose final score is behind PPO on any pair (the two-level 95% interval of
    candidate − PPO wholly below 0) is out, unless every candidate is;
 3. of the rest, the one ahead of PPO in the normalised area under the learning curve (its
-   interval wholly above 0) on the most pairs goes;
+   interval wholly above 0) on the most pairs goes; candidates ahead on no pair tie at 0,
+   and rule 4 decides (the screens' 15 runs decide little; the paper's budget decides);
 4. a tie goes to the larger mean over the pairs of its area difference in units of the
    pair's A/A gap: the difference divided by the A/A noise floor, the largest |value| the
    interval of ppo-aa − ppo admits (:func:`pved.analysis.transfer_measures.aa_noise`; the
@@ -28,11 +29,12 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pved.analysis.judge import AA_REFERENCE, FOUR, Judge, load_pairs
+from pved.analysis.judge import AA_REFERENCE, FOUR, Judge, load_pairs, load_summary
 from pved.analysis.transfer_measures import BASELINE, REFERENCES, method_measures
 from pved.config import ProtocolBudget, get_budget
 from pved.errors import PvedError
@@ -78,8 +80,10 @@ class Standing:
     @property
     def area_units(self) -> float:
         """The area difference over the pair's A/A noise floor (rule 4)."""
-        noise = float(self.area["aa"]["noise"])
-        return float(self.area["value"]) / noise if noise > 0 else float("inf")
+        noise, value = float(self.area["aa"]["noise"]), float(self.area["value"])
+        if noise > 0:
+            return value / noise
+        return math.copysign(math.inf, value) if value else 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,14 +138,37 @@ def _standing(
     return Standing(pair, method, cells["final"], cells["auc"], float(beta), init, record)
 
 
+def _check_finished(directory: Path) -> None:
+    """Refuse a screen that is not whole: runs failed or blocked, or a method with runs
+    still missing (a ``summary.json`` is written after such a run too, and by ``pved
+    plot`` at any time)."""
+    summary = load_summary(directory)
+    if summary.get("failed") or summary.get("blocked"):
+        raise PvedError(f"{directory}: runs failed or were blocked; finish the screen first")
+    for pair, entry in summary["pairs"].items():
+        for method, m in (entry.get("methods") or {}).items():
+            planned, done = m.get("runs_planned"), m.get("runs_finished")
+            if m.get("missing") or (isinstance(planned, int) and done != planned):
+                raise PvedError(
+                    f"{directory}: {method} on {pair} has {done} of {planned} runs; "
+                    "finish the screen first"
+                )
+
+
 def choose(directories: Sequence[Path | str], candidates: Sequence[str] = ()) -> Choice:
     """Apply the rule (module docstring) to the screens in ``directories``. ``candidates``:
     the methods to choose among (default: every method of the screens that is not a
     reference). Raises PvedError (one line) for a directory that is no finished
     ``screen-auc`` protocol, a pair without ``ppo``/``ppo-aa`` runs, or a named candidate
     that no screen holds."""
+    for directory in directories:
+        _check_finished(Path(directory))
     pairs = load_pairs([Path(d) for d in directories])
     for name, p in pairs.items():
+        if name not in FOUR:
+            raise PvedError(
+                f"{p.directory}: {name} is not one of the rule's pairs ({', '.join(FOUR)})"
+            )
         if p.budget != SCREEN_BUDGET:
             raise PvedError(
                 f"{p.directory}: a {p.budget!r} protocol; the rule reads {SCREEN_BUDGET!r} "
@@ -193,8 +220,9 @@ def _decide(c: Choice, methods: Sequence[str]) -> dict[str, Any]:
         return {"winner": best[0], "why": f"ahead in area on {most} of 4 pairs (rule 3){note}"}
     best.sort(key=lambda m: c.tie_score(m), reverse=True)
     top = best[0]
-    if c.tie_score(best[1]) == c.tie_score(top):
-        return {"winner": None, "why": f"{' and '.join(best)} tie by rules 3 and 4"}
+    tied = [m for m in best if c.tie_score(m) == c.tie_score(top)]
+    if len(tied) > 1:
+        return {"winner": None, "why": f"{' and '.join(tied)} tie by rules 3 and 4"}
     return {
         "winner": top,
         "why": (
@@ -338,15 +366,14 @@ def preregistration_text(
 
 
 def write_preregistration(c: Choice, path: Path | str, budget: str, pairs: Sequence[str]) -> Path:
-    """Write :func:`preregistration_text` to ``path`` atomically; an existing file is
-    refused (a registration is changed by hand, in a commit that says why)."""
+    """Write :func:`preregistration_text` to ``path`` atomically, its folder made where
+    missing; an existing file is refused (a registration is changed by hand, in a commit
+    that says why)."""
     path = Path(path)
     text = preregistration_text(c, budget, pairs)
     if path.exists():
         raise PvedError(f"--write {path}: exists; a pre-registration is never overwritten")
-    if not path.parent.is_dir():
-        raise PvedError(f"--write {path}: no directory {path.parent}")
-    atomic_write_bytes(path, text.encode())
+    atomic_write_bytes(path, text.encode())  # makes its folder (docs/preregistration/)
     return path
 
 
