@@ -378,7 +378,9 @@ def parse_spec(data: Mapping[str, Any], path: Path) -> PairPreset:
 
 
 # ---------------------------------------------------------------------------- writing
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
+    """``value`` (None, bool, number, str, list, mapping) as a TOML value, as spec files
+    and pre-registrations (:mod:`pved.protocol.choose`) write them."""
     if value is None:
         return json.dumps(NONE)
     if isinstance(value, bool):
@@ -388,9 +390,9 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, str):
         return json.dumps(value)
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }"
     raise PvedError(f"cannot write {value!r} to a spec")
 
 
@@ -412,15 +414,15 @@ def dump_pair(preset: PairPreset) -> str:
     ``read_spec`` of the text gives ``preset`` back (``pved pair show``)."""
     lines = [
         "# pved pair spec (docs/pairs.md); `pved pair check` this file after editing it",
-        f"name = {_toml_value(preset.name)}",
-        f"training_task = {_toml_value(preset.training_task)}",
-        f"target_task = {_toml_value(preset.target_task)}",
+        f"name = {toml_value(preset.name)}",
+        f"training_task = {toml_value(preset.training_task)}",
+        f"target_task = {toml_value(preset.target_task)}",
     ]
 
     def table(header: str, values: Mapping[str, Any]) -> None:
         lines.append("")
         lines.append(f"[{header}]")
-        lines.extend(f"{_key(k)} = {_toml_value(v)}" for k, v in values.items())
+        lines.extend(f"{_key(k)} = {toml_value(v)}" for k, v in values.items())
 
     for side, agent in zip(SIDES, (preset.source_agent, preset.target_agent), strict=True):
         head: dict[str, Any] = {"agent": agent}
@@ -468,7 +470,7 @@ def dump_pair(preset: PairPreset) -> str:
         lines.append("")
         lines.append("[[policy.override]]")
         over = {"agent": agent, "task": task, **_changes(cfg, preset.policy)}
-        lines.extend(f"{_key(k)} = {_toml_value(v)}" for k, v in over.items())
+        lines.extend(f"{_key(k)} = {toml_value(v)}" for k, v in over.items())
     table(
         "protocol",
         {

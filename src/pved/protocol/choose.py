@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -41,6 +40,7 @@ from pved.errors import PvedError
 from pved.protocol.preregistration import PAPER_STEPS
 from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes
+from pved.spec import toml_value
 from pved.transfer.methods import get_method
 
 SCREEN_BUDGET = "screen-auc"
@@ -295,18 +295,6 @@ def choice_json(c: Choice) -> dict[str, Any]:
     }
 
 
-def _toml(value: Any) -> str:
-    """A TOML value of a str, bool, int, float or list of them (json's quoting is TOML's
-    for the strings written here)."""
-    if isinstance(value, list):
-        return "[" + ", ".join(_toml(v) for v in value) + "]"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    return json.dumps(str(value))
-
-
 def check_registered_budget(budget: str) -> ProtocolBudget:
     """``budget``, which a pre-registration may register: one of the paper's length whose
     evaluation seeds are none of the screens' tuning seeds; else PvedError (one line)."""
@@ -347,21 +335,21 @@ def preregistration_text(
     lines = [
         "# Issue 64's rule applied to the screens (`pved choose`; docs/decisions/protocol.md):",
         f"# {c.why}.",
-        f"method = {_toml(c.winner)}",
-        f"budget = {_toml(budget)}",
+        f"method = {toml_value(c.winner)}",
+        f"budget = {toml_value(budget)}",
         f"date = {day.isoformat()}",
         f"evaluation_seeds = {len(b.evaluation_seeds)}",
         f"source_policies = {b.source_policies}",
-        f"tuning_seeds = {_toml(tuning)}",
-        f"tuning_budget = {_toml(SCREEN_BUDGET)}",
+        f"tuning_seeds = {toml_value(tuning)}",
+        f"tuning_budget = {toml_value(SCREEN_BUDGET)}",
         "",
         "[settings]",
-        *(f"{k} = {_toml(v)}" for k, v in settings.items()),
+        *(f"{k} = {toml_value(v)}" for k, v in settings.items()),
     ]
     for pair in pairs:
         s = c.standings[c.winner][pair]
         lines += ["", f"[pairs.{pair}]", f"beta = {s.beta!r}", f"init = {s.init}"]
-        lines.append(f"screen = {_toml(s.record)}")
+        lines.append(f"screen = {toml_value(s.record)}")
     return "\n".join(lines) + "\n"
 
 
