@@ -8,6 +8,7 @@ a reward gate turns any guide off for good once the task is being found.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from helpers import first_minibatch, params_of, push_bank_and_model
 from pved.envs import make_batched
 from pved.envs.toy import PointTarget1D
 from pved.errors import PvedError
+from pved.experiments.transfer_spec import gate_score, guide_limits
 from pved.models import PVED
 from pved.models.base import SharedRep
 from pved.pair import resolve_pair
@@ -27,6 +29,7 @@ from pved.rl.guide import GATE_EPISODES, GUIDE_CONTEXT, GUIDE_GRAD_RATIO, GUIDE_
 from pved.rl.ppo import PPOConfig, _Trainer, train_ppo
 from pved.run_layout import model_dataset_path
 from pved.runs import Run, file_digest
+from pved.spec import PRESETS
 from pved.transfer.align_guide import D_GATE_FACTOR, D_GATE_QUANTILE, matched_distance_limit
 from pved.transfer.shaping import LatentShaping, ShapedBatchedEnv
 from pved.transfer.source_bank import SourceBank
@@ -192,6 +195,96 @@ def test_the_reward_gate_closes_for_good_once_the_task_is_found() -> None:
     assert again.state_dict() == gate.state_dict()
     with pytest.raises(PvedError, match="reward gate"):
         RewardGate(episodes=1)
+
+
+def test_a_gate_scored_by_the_task_stays_open_while_a_body_merely_lasts_longer() -> None:
+    # Hopper's restricted reward: healthy 1 a step but 0 on the last, a little control
+    # cost; episodes lengthen from 14 to 24 steps as it learns to stand, and it falls a
+    # little further forward (x from about 0 to 0.15 m, a few cm apart), as walker-hopper's
+    # guided runs did in their first 8k steps
+    rng = np.random.default_rng(2)
+    lengths = np.linspace(14, 24, 800).round()
+    returns = (lengths - 1.0) - 0.001 * lengths
+    x = np.linspace(0.0, 0.15, 800) + 0.03 * rng.standard_normal(800)
+    by_step, by_t = RewardGate(), RewardGate(score="x_position")
+    by_task = RewardGate(score="x_position", min_gap=0.5)
+    for start in range(0, 800, 16):
+        part = slice(start, start + 16)
+        for gate in (by_step, by_t, by_task):
+            gate.observe(list(returns[part]), list(lengths[part]), [], start, list(x[part]))
+    # the reward per step rises from 13/14 to 23/24, and t alone calls 15 cm found
+    assert not by_step.open and by_step.kind == "reward_per_step"
+    assert not by_t.open and by_t.kind == "x_position"
+    assert by_task.open and by_task.t is not None and by_task.t > 5
+    # once the body gets half a metre further, it closes
+    far = 0.8 + 0.1 * rng.standard_normal(64)
+    for start in range(0, 64, 16):
+        by_task.observe([1.0] * 16, [20.0] * 16, [], 900 + start, list(far[start : start + 16]))
+    assert not by_task.open and by_task.closed_at is not None
+
+
+def test_a_gate_refuses_episodes_it_cannot_score() -> None:
+    with pytest.raises(PvedError, match="'x_position', which the env did not report"):
+        RewardGate(score="x_position").observe([1.0, 2.0], [5.0, 6.0], [], 10, [0.3])
+    with pytest.raises(PvedError, match="'is_success'"):
+        RewardGate(score="is_success").observe([1.0], [5.0], [], 10)
+    with pytest.raises(PvedError, match="non-empty name"):
+        RewardGate(score="")
+    with pytest.raises(PvedError, match="min_gap must be finite and >= 0"):
+        RewardGate(min_gap=-0.1)
+    old = RewardGate()
+    old.observe([1.0], [5.0], [], 10)
+    with pytest.raises(PvedError, match="cannot resume one that scored by 'reward_per_step'"):
+        RewardGate(score="x_position").load_state_dict(old.state_dict())
+    assert RewardGate(score="return").info_key is None
+    assert RewardGate(score="x_position").info_key == "x_position"
+
+
+def test_each_pair_s_gate_scores_by_the_pair_s_own_measure_of_the_task() -> None:
+    scores = {name: gate_score(resolve_pair(name).preset) for name in PRESETS}
+    assert scores == {
+        "reacher": "is_success",
+        "jaco-fetch": "is_success",
+        "walker-hopper": "x_position",
+        "humanoid-ant": "x_position",
+    }
+    preset = resolve_pair("walker-hopper").preset
+    assert guide_limits("prior", preset)["gate_score"] == "x_position"
+    assert guide_limits("prior", preset)["gate_min_gap"] == 0.5  # the metric's resolution
+    assert guide_limits("align", resolve_pair("reacher").preset)["gate_min_gap"] == 0.0
+    odd = dataclasses.replace(preset, metric="height_mean")
+    with pytest.raises(PvedError, match="cannot score an episode by the metric 'height_mean'"):
+        gate_score(odd)
+
+
+class _Scored(_Toy):
+    """The toy task whose guide's gate scores by ``info["progress"]``, which stays 0."""
+
+    def __init__(self, n: int, guide: _Pull, report: bool = True) -> None:
+        super().__init__(n, guide)
+        guide.gate_score = "progress"  # type: ignore[attr-defined]
+        self.report = report
+
+    def step(self, actions: np.ndarray):  # type: ignore[no-untyped-def]
+        obs, reward, term, trunc, info = super().step(actions)
+        if self.report:
+            info["progress"] = np.zeros(self.num_envs)
+        return obs, reward, term, trunc, info
+
+
+def test_ppo_scores_the_gate_by_the_guide_s_entry(tmp_path: Path) -> None:
+    # the same run as below, whose success rate closes a success gate: scored by an entry
+    # that never rises, the gate stays open and the guide is asked at every update
+    cfg = PPOConfig(num_envs=8, steps_per_env=64, minibatch_size=128, epochs=10,
+                    hidden_sizes=(32, 32), activation="tanh", total_steps=24_576,
+                    checkpoint_every=0, seed=1)  # fmt: skip
+    train_ppo(_Scored(8, _Pull(0.0)), cfg, Run(tmp_path / "run", {"c": 1}), progress=False)
+    rows = Run(tmp_path / "run", {"c": 1}).read_metrics()
+    gate = [r["guide/gate_open"] for r in rows if "guide/gate_open" in r]
+    assert len(gate) == 48 and set(gate) == {1.0}
+    assert all("loss/guide_loss" in r for r in rows if "guide/gate_open" in r)
+    with pytest.raises(PvedError, match="'progress', which the env did not report"):
+        train_ppo(_Scored(8, _Pull(0.0), report=False), cfg, None, progress=False)
 
 
 def test_ppo_stops_asking_the_guide_once_the_gate_closes(tmp_path: Path) -> None:

@@ -734,6 +734,10 @@ def _training_env(spec: TransferSpec, method: str) -> BatchedEnv:
         align_anneal=spec.align_anneal,
     )
     shaped = ShapedBatchedEnv(env, shaping, pair.preset.bank_match_keys)
+    if shaped.action_guide is not None:  # PPO's reward gate scores episodes by the task
+        limits = spec.config["guide_limits"]
+        shaped.action_guide.gate_score = limits["gate_score"]
+        shaped.action_guide.gate_min_gap = limits["gate_min_gap"]
     if isinstance(shaped.action_guide, AlignGuide):  # its D gate reads the model's pairs
         pairs = load_dataset(model_dataset_path(pair, model))
         shaped.action_guide.d_limit = matched_distance_limit(model, *pairs.model_inputs())

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from pved.checks import check_int, given, named_options
+from pved.config import PairPreset
 from pved.errors import PvedError
 from pved.models.registry import MODELS
 from pved.pair import Pair, resolve_pair
@@ -81,15 +82,40 @@ def eq10_config(bank_time: str, shaping_action: str = "mean") -> dict[str, Any]:
     }
 
 
-def guide_limits(form: str) -> dict[str, Any]:
+def gate_score(preset: PairPreset) -> str:
+    """What the reward gate (``pved.rl.guide.RewardGate``) judges a finished training
+    episode by: the pair's own measure of the task (``preset.metric``) for one episode,
+    so that the gate closes once the task is being found and not once the body merely
+    lasts longer (docs/decisions/transfer.md, "A guide that cannot take PPO's budget").
+    ``success_rate``: its success; ``return_mean``, ``length_mean``: its return, length;
+    ``<key>_mean`` of an ``info`` entry the pair evaluates by: that entry at its last step
+    (``x_position`` for the locomotion pairs)."""
+    metric = preset.metric
+    named = {"success_rate": "is_success", "return_mean": "return", "length_mean": "length"}
+    if metric in named:
+        return named[metric]
+    key = metric.removesuffix("_mean")
+    if metric.endswith("_mean") and key in preset.eval_info_keys:
+        return key
+    raise PvedError(
+        f"{preset.name}: the reward gate cannot score an episode by the metric {metric!r} "
+        "(success_rate, return_mean, length_mean or <info key>_mean of the metric's info_keys)"
+    )
+
+
+def guide_limits(form: str, preset: PairPreset) -> dict[str, Any]:
     """What bounds a guide form's loss on the mean action (``pved.rl.guide``): its
     gradient's norm at most ``grad_ratio`` times PPO's clipped one's, the reward gate's
-    window and t, and for the align form the D gate (``pved.transfer.align_guide``).
-    In the run's config, so a run under other limits has another hash."""
+    window, t, score (:func:`gate_score`) and least rise (the metric's resolution, the
+    scale below which the pair's tuning calls a difference noise), and for the align form
+    the D gate (``pved.transfer.align_guide``). In the run's config, so a run under other
+    limits has another hash."""
     limits: dict[str, Any] = {
         "grad_ratio": GUIDE_GRAD_RATIO,
         "gate_episodes": GATE_EPISODES,
         "gate_z": GATE_Z,
+        "gate_score": gate_score(preset),
+        "gate_min_gap": float(preset.metric_resolution or 0.0),
     }
     if form == "align":
         limits["d_gate"] = {
@@ -206,7 +232,7 @@ def transfer_spec(
             config["shaping_form"] = shaping_form
         if shaping_form in GUIDE_FORMS:
             config["align_anneal"] = align_anneal
-            config["guide_limits"] = guide_limits(shaping_form)
+            config["guide_limits"] = guide_limits(shaping_form, preset)
         elif recipe.anneal is not None:  # a reward form's term annealed (pved-anneal)
             if shaping_form == "potential":
                 raise PvedError(

@@ -59,7 +59,9 @@ class ActionGuide(Protocol):
 
     A guide may also keep, in an attribute ``last_stats`` (a dict of floats), what its
     last :meth:`loss_grad` call saw (e.g. the share of rows it masked); PPO records it as
-    ``loss/guide_<key>``. It is not part of the protocol, so a guide without it is one.
+    ``loss/guide_<key>``; and in attributes ``gate_score`` (a str) and ``gate_min_gap`` (a
+    float) what its :class:`RewardGate` judges an episode by and how far that must rise.
+    None of them is part of the protocol, so a guide without them is one.
     """
 
     #: columns of one context row (the K of ``info["guide_context"]``)
@@ -82,29 +84,66 @@ class ActionGuide(Protocol):
         ...
 
 
-class RewardGate:
-    """Turns a guide off for the rest of a run once the task reward is being found.
+#: The scores a reward gate can judge an episode by, besides an ``info`` entry read at
+#: the episode's last step: its success (``info["is_success"]``), its return on the env's
+#: reward, its length.
+GATE_SCORES = ("is_success", "return", "length")
 
-    An episode's score is its success (where the env reports ``is_success``) or else its
-    reward per step, return / length: a score that does not rise by lasting longer, so a
-    target that learns to stay up without doing the task (Hopper's restricted reward has
-    no forward term) does not close the gate. The first :data:`GATE_EPISODES` finished
-    episodes are the run's start; once as many more have finished, each update compares
-    the last :data:`GATE_EPISODES` with the start by Welch's t, and the gate closes for
-    good once t exceeds :data:`GATE_Z`. Two windows of 50 drawn alike give t > 5 about one
-    time in a million, so noise does not close it; a success rate that rises from 0 closes
-    it at about a third of the recent episodes succeeding.
+
+class RewardGate:
+    """Turns a guide off for the rest of a run once the task is being found.
+
+    ``score`` names what an episode is judged by: the pair's own measure of the task
+    (``pved.experiments.transfer_spec.gate_score``), ``"is_success"``, ``"return"``,
+    ``"length"`` or an ``info`` entry read at the episode's last step (``"x_position"``
+    for the locomotion pairs: how far the body got). None, for a guide whose caller names
+    no measure, scores success where the env reports it and else the reward per step
+    (return / length). That fallback rises when a body merely lasts longer (a Hopper's
+    healthy reward is 0 on its last step, so a 14-step episode earns 13/14 of the
+    healthy term a step and a 24-step one 23/24): on walker-hopper it closed every guided
+    run's gate within 8k steps of 300k, before the task's measure had moved. The task's
+    own measure does not rise by lasting longer without doing the task.
+
+    The first :data:`GATE_EPISODES` finished episodes are the run's start; once as many
+    more have finished, each update compares the last :data:`GATE_EPISODES` with the
+    start by Welch's t, and the gate closes for good once t exceeds :data:`GATE_Z` and
+    the recent mean is at least ``min_gap`` above the start's. Two windows of 50 drawn
+    alike give t > 5 about one time in a million, so noise does not close it; a success
+    rate that rises from 0 closes it at about a third of the recent episodes succeeding.
+    ``min_gap`` is for a score without a natural scale: a Hopper that falls at once ends
+    within a few cm of its start, so t alone calls 14 cm found (on walker-hopper, at 8k
+    steps); the pair's metric resolution (0.5 m there) says how far is more than a body
+    falling a little further forward.
     """
 
-    def __init__(self, episodes: int = GATE_EPISODES, z: float = GATE_Z) -> None:
+    def __init__(
+        self,
+        episodes: int = GATE_EPISODES,
+        z: float = GATE_Z,
+        score: str | None = None,
+        min_gap: float = 0.0,
+    ) -> None:
         if episodes < 2 or not z > 0:
             raise PvedError(f"a reward gate needs >= 2 episodes and z > 0, got {episodes}, {z}")
+        if score is not None and (not isinstance(score, str) or not score):
+            raise PvedError(f"a reward gate's score must be a non-empty name, got {score!r}")
+        if not (math.isfinite(min_gap) and min_gap >= 0):
+            raise PvedError(f"a reward gate's min_gap must be finite and >= 0, got {min_gap}")
         self.episodes, self.z = int(episodes), float(z)
-        self.kind: str | None = None  # "success" or "reward_per_step", fixed at first sight
+        self.score, self.min_gap = score, float(min_gap)
+        # what the episodes are scored by, fixed at first sight: the score's name, or for
+        # score None "success" or "reward_per_step"
+        self.kind: str | None = None
         self.start: list[float] = []
         self.recent: list[float] = []
         self.t: float | None = None  # the last comparison's t
         self.closed_at: int | None = None  # the env step it closed at
+
+    @property
+    def info_key(self) -> str | None:
+        """The ``info`` entry PPO reads at each finished episode's last step for this gate
+        (None: the gate needs none beyond returns, lengths and successes)."""
+        return self.score if self.score not in (None, *GATE_SCORES) else None
 
     @property
     def open(self) -> bool:
@@ -112,18 +151,20 @@ class RewardGate:
         return self.closed_at is None
 
     def observe(
-        self, returns: list[float], lengths: list[float], successes: list[float], step: int
+        self,
+        returns: list[float],
+        lengths: list[float],
+        successes: list[float],
+        step: int,
+        values: list[float] | None = None,
     ) -> None:
-        """Take one update's finished episodes (returns, lengths and, where the env reports
-        it, successes) seen by env step ``step``; close the gate where the task is found."""
+        """Take one update's finished episodes seen by env step ``step``: their returns,
+        lengths, successes (where the env reports them) and ``values``, the
+        :attr:`info_key` entry at each one's last step; close the gate where the task is
+        found."""
         if not self.open or not returns:
             return
-        if self.kind is None:
-            self.kind = "success" if len(successes) == len(returns) else "reward_per_step"
-        if self.kind == "success":
-            scores = [float(x) for x in successes]
-        else:
-            scores = [float(r) / max(float(n), 1.0) for r, n in zip(returns, lengths, strict=True)]
+        scores = self._scores(returns, lengths, successes, values)
         for score in scores:
             if len(self.start) < self.episodes:
                 self.start.append(score)
@@ -136,8 +177,32 @@ class RewardGate:
         gap = float(b.mean() - a.mean())
         se = math.sqrt(float(a.var(ddof=1) + b.var(ddof=1)) / self.episodes)
         self.t = gap / se if se > 0 else (math.inf if gap > 0 else 0.0)
-        if self.t > self.z:
+        if self.t > self.z and gap >= self.min_gap:
             self.closed_at = int(step)
+
+    def _scores(
+        self,
+        returns: list[float],
+        lengths: list[float],
+        successes: list[float],
+        values: list[float] | None,
+    ) -> list[float]:
+        """Each finished episode's score by :attr:`score`."""
+        if self.score is None:
+            if self.kind is None:
+                self.kind = "success" if len(successes) == len(returns) else "reward_per_step"
+            if self.kind == "success":
+                return [float(x) for x in successes]
+            return [float(r) / max(float(n), 1.0) for r, n in zip(returns, lengths, strict=True)]
+        self.kind = self.score
+        by_name = {"is_success": successes, "return": returns, "length": lengths}
+        got = by_name.get(self.score, values)
+        if got is None or len(got) != len(returns):
+            raise PvedError(
+                f"the reward gate scores episodes by {self.score!r}, which the env did not "
+                f"report for every finished episode"
+            )
+        return [float(x) for x in got]
 
     def scalars(self) -> dict[str, float]:
         """What a run's metrics record of the gate at an update."""
@@ -160,6 +225,11 @@ class RewardGate:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        if self.score is not None and state["kind"] not in (None, self.score):
+            raise PvedError(
+                f"a reward gate scoring by {self.score!r} cannot resume one that scored by "
+                f"{state['kind']!r}"
+            )
         self.kind = state["kind"]
         self.start = [float(x) for x in state["start"]]
         self.recent = [float(x) for x in state["recent"]]
@@ -169,6 +239,7 @@ class RewardGate:
 
 __all__ = [
     "GATE_EPISODES",
+    "GATE_SCORES",
     "GATE_Z",
     "GUIDE_CONTEXT",
     "GUIDE_GRAD_RATIO",

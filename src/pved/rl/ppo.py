@@ -316,7 +316,14 @@ class _Trainer:
             raise PvedError(f"{type(env).__name__}.action_guide is not an ActionGuide")
         self.guide: ActionGuide | None = guide
         # off for the rest of the run once the task is being found (pved.rl.guide)
-        self.gate: RewardGate | None = RewardGate() if guide is not None else None
+        self.gate: RewardGate | None = (
+            RewardGate(
+                score=getattr(guide, "gate_score", None),
+                min_gap=getattr(guide, "gate_min_gap", 0.0),
+            )
+            if guide is not None
+            else None
+        )
         # the guide's parameter gradient, kept apart from PPO's until PPO's is clipped
         self.guide_grad = np.zeros_like(self.flat.grad_np)
         self.guide_actor_g = actor_critic_views(
@@ -448,6 +455,9 @@ class _Trainer:
         term_sums: dict[str, float] = {}
         shaped = False  # whether the env's reward carries a shaping term
         successes: list[np.ndarray | None] = []  # per step: is_success of its copies
+        # per step: the entry the reward gate scores a finished episode by, where it has one
+        gate_key = None if self.gate is None or not self.gate.open else self.gate.info_key
+        gate_values: list[np.ndarray | None] = []
         for t in range(cfg.steps_per_env):
             obs_n = self.obs_norm(self.obs)
             mean, value = self._forward(obs_n)
@@ -485,6 +495,10 @@ class _Trainer:
             successes.append(
                 np.asarray(info["is_success"], dtype=np.float64) if "is_success" in info else None
             )
+            if gate_key is not None:
+                gate_values.append(
+                    np.asarray(info[gate_key], dtype=np.float64) if gate_key in info else None
+                )
             self.buf_done[t] = done
             self.buf_term[t] = terminated
             self.obs_norm.update(self.obs)
@@ -505,21 +519,36 @@ class _Trainer:
             self.buf_env_part[:] = self.buf_given
             self.buf_given += terms
             term_sums["reward_shaping"] = float(np.sum(terms))
-        episodes = self._account(shaped, successes)
+        episodes = self._account(shaped, successes, gate_values if gate_key else None)
         self.global_step += cfg.batch_size
         if self.gate is not None:
             self.gate.observe(
-                episodes["return"], episodes["length"], episodes["success"], self.global_step
+                episodes["return"],
+                episodes["length"],
+                episodes["success"],
+                self.global_step,
+                episodes["gate_value"] if gate_key else None,
             )
         self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
         return episodes
 
-    def _account(self, shaped: bool, successes: list[np.ndarray | None]) -> dict[str, list[float]]:
+    def _account(
+        self,
+        shaped: bool,
+        successes: list[np.ndarray | None],
+        gate_values: list[np.ndarray | None] | None = None,
+    ) -> dict[str, list[float]]:
         """The rollout's rewards, step by step in the order they came: episode statistics
         on the env's reward, then the reward PPO optimises into ``buf_rew`` (normalised
-        when ``normalize_reward``); returns the finished episodes' statistics."""
+        when ``normalize_reward``); returns the finished episodes' statistics (and, with
+        ``gate_values``, the reward gate's entry at each one's last step)."""
         cfg = self.cfg
-        episodes: dict[str, list[float]] = {"return": [], "length": [], "success": []}
+        episodes: dict[str, list[float]] = {
+            "return": [],
+            "length": [],
+            "success": [],
+            "gate_value": [],
+        }
         clip_hits = 0  # steps whose scaled env reward the ±reward_clip bound
         for t in range(cfg.steps_per_env):
             reward = self.buf_given[t]
@@ -534,6 +563,9 @@ class _Trainer:
                 success = successes[t]
                 if success is not None:
                     episodes["success"].extend(success[idx].tolist())
+                value = None if gate_values is None else gate_values[t]
+                if value is not None:
+                    episodes["gate_value"].extend(value[idx].tolist())
                 self.ep_ret[idx] = 0.0
                 self.ep_len[idx] = 0
 

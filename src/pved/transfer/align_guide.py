@@ -129,6 +129,10 @@ class AlignGuide:
         # the D gate's limit (None: no gate), and what the last loss_grad call saw
         self.d_limit: float | None = None
         self.last_stats: dict[str, float] = {}
+        # what PPO's reward gate judges an episode by and how far it must rise
+        # (pved.rl.guide.RewardGate; set by the transfer stage from the run's config)
+        self.gate_score: str | None = None
+        self.gate_min_gap = 0.0
 
     @property
     def backend(self) -> str:

@@ -103,6 +103,10 @@ class PriorGuide:
         # True once PPO has asked for the loss where its weight is 0 (as AlignGuide.faded):
         # the weight never rises again, so the context is zeros from then on
         self.faded = False
+        # what PPO's reward gate judges an episode by and how far it must rise
+        # (pved.rl.guide.RewardGate; set by the transfer stage from the run's config)
+        self.gate_score: str | None = None
+        self.gate_min_gap = 0.0
 
     def context(self, obs: np.ndarray, episode: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Context rows (N, A) float32, a_prior for target steps ``t`` (N,) of bank
