@@ -611,11 +611,17 @@ def finals(rec: Records, page: str, directory: str) -> str:
     return _table(header, rows)
 
 
-def power(rec: Records, page: str, *directories: str) -> str:
-    """The difference each count of runs can decide on each pair, from PPO's spread in
-    ``directories`` (:mod:`pved.analysis.power`)."""
-    pairs = load_pairs([rec.path(d) for d in directories])
-    return power_table(power_rows(pairs))
+def power(rec: Records, page: str, *inputs: str) -> str:
+    """The gain over PPO the two-level verdicts find at 80% power, by source count, from
+    the pilot runs of ``inputs`` (:mod:`pved.analysis.power`): ``DIR`` takes every shaped
+    method of the record as a pilot, ``METHOD=DIR`` that one (as ``pved scoreboard``
+    reads its inputs; PPO's runs come from DIR either way). A row costs a few seconds of
+    simulation."""
+    rows = []
+    for method, _, directory in (i.rpartition("=") for i in inputs):
+        pairs = load_pairs([rec.path(directory)])
+        rows += power_rows(pairs, methods=[method] if method else None)
+    return power_table(rows)
 
 
 TABLES: dict[str, Callable[..., str]] = {

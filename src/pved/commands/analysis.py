@@ -180,9 +180,15 @@ def _cmd_power(args: argparse.Namespace) -> None:
     from pved.analysis.power import power_rows, power_table
     from pved.errors import PvedError
 
-    if any(n < 1 for n in args.runs):
-        raise PvedError(f"--runs must be positive counts, got {args.runs}")
-    print(power_table(power_rows(load_pairs(args.protocols), args.runs)))
+    if args.runs < 1 or any(k < 2 or args.runs % k for k in args.sources):
+        raise PvedError(f"--runs {args.runs} does not split evenly among --sources {args.sources}")
+    if args.datasets < 1 or args.reps < 1:
+        raise PvedError(f"--datasets and --reps must be positive, got {args.datasets}, {args.reps}")
+    pairs = load_pairs(args.protocols)
+    rows = power_rows(
+        pairs, args.runs, args.sources, args.methods, args.datasets, args.reps, args.seed
+    )
+    print(power_table(rows))
 
 
 def add_power(v: Verbs) -> None:
@@ -190,10 +196,19 @@ def add_power(v: Verbs) -> None:
 
     p = sub.add_parser(
         "power",
-        help="the smallest difference from PPO that N runs a method would find (80% power)",
+        help="the smallest gain over PPO the two-level verdicts find (80%% power), by sources",
     )
     p.add_argument("protocols", nargs="+", type=Path, metavar="DIR", help="protocol directories")
-    p.add_argument("--runs", nargs="+", type=int, default=[15, 45, 81], help="runs a method")
+    p.add_argument("--runs", type=int, default=45, help="runs of a method (and of PPO)")
+    p.add_argument(
+        "--sources", nargs="+", type=int, default=[3, 5, 9], help="source policies to split them"
+    )
+    p.add_argument(
+        "--methods", nargs="+", default=None, help="shaped methods whose runs are the pilot (all)"
+    )
+    p.add_argument("--datasets", type=int, default=200, help="simulated data sets per design")
+    p.add_argument("--reps", type=int, default=2000, help="bootstrap resamples per data set")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated data sets")
     p.set_defaults(func=_cmd_power)
 
 
