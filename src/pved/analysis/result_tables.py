@@ -104,8 +104,6 @@ SCREENS_64 = (
     ("reacher", "pved-align", "reacher-screen-auc"),
     ("reacher", "pved-prior", "reacher-screen-auc-bar"),
     ("reacher", "pved-align", "reacher-screen-auc-bar"),
-    ("walker-hopper", "pved-prior", "walker-hopper-screen-auc"),
-    ("walker-hopper", "pved-align", "walker-hopper-screen-auc"),
 )
 """Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
 runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
