@@ -15,8 +15,14 @@ import pytest
 from helpers import CURVE_STEPS, protocol_dir
 from pved.analysis.judge import FOUR
 from pved.errors import PvedError
-from pved.protocol.choose import choose, preregistration_text, write_preregistration
-from pved.protocol.preregistration import _check_design, read_file
+from pved.protocol.choose import (
+    choose,
+    pinned_settings,
+    preregistration_text,
+    write_preregistration,
+)
+from pved.protocol.plan import ProtocolPlan
+from pved.protocol.preregistration import _check_design, _check_run_config, read_file
 
 PPO = np.linspace(0.0, 0.5, len(CURVE_STEPS))
 #: Each screen's selection, different on every pair, so a file that wrote one pair's
@@ -183,6 +189,15 @@ def test_the_file_registers_each_screens_choice_and_the_protocol_reads_it_back(
             INIT[pair],
         )
     assert set(data["pairs"]) == {"reacher", "jaco-fetch"}
+    # the settings this code gives the evaluation runs, which the gate checks, and the
+    # code the screen runs were made by (these record none)
+    screened = {"protocol": "s", "budget": "screen-auc", "tuning_seeds": [1]}
+    fixed = {p: {"pved-prior": {**data["pairs"][p], **screened}} for p in data["pairs"]}
+    plan = ProtocolPlan(list(fixed), ["pved-prior"], "paper-wide", tmp_path / "o", fixed)
+    _check_run_config(path, data, plan, "pved-prior")  # raises if not
+    assert data["pairs"]["reacher"]["run_config"]["shaping_form"] == "prior"
+    assert "guide_limits" in data["pairs"]["jaco-fetch"]["run_config"]
+    assert data["pairs"]["reacher"]["screen_fingerprints"] == {"unknown": 6}
     with pytest.raises(PvedError, match="never overwritten"):
         write_preregistration(c, path, "paper", ["reacher"])
     with pytest.raises(PvedError, match="paper's budgets"):
@@ -201,3 +216,35 @@ def test_the_cli_refuses_a_bad_budget_before_judging_and_writes_nothing(tmp_path
     assert good.returncode == 0, good.stderr
     assert "`pved-prior` goes to the paper's budget" in good.stdout and target.is_file()
     assert set(read_file(target)["pairs"]) == set(FOUR)
+
+
+def test_the_file_says_where_the_code_gives_other_settings_than_the_screens_ran_under(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    aa = dict.fromkeys(FOUR, 0.05)
+    dirs = screens(tmp_path / "s", dict.fromkeys(FOUR, 0.2), dict.fromkeys(FOUR, 0.0), aa)
+    c = choose(dirs)
+    now = pinned_settings(c, "paper", list(FOUR)).run_config
+    # every screen run records this code's settings under fingerprint "f1", but
+    # walker-hopper's were made before a fix to the guide's limits
+    for directory, pair in zip(dirs, FOUR, strict=True):
+        settings = json.loads(json.dumps(now[pair]))
+        if pair == "walker-hopper":
+            settings["guide_limits"]["grad_ratio"] = 99.0
+        for run in (directory / "runs" / pair / "transfer").glob("*/seed*"):
+            config = {"stage": "transfer", "pair": pair, "method": run.parent.name, **settings}
+            record = {"config": config, "fingerprint": "f1"}
+            (run / "config.json").write_text(json.dumps(record))
+    pinned = pinned_settings(c, "paper", list(FOUR))  # the records are read now
+    assert pinned.drift == {"walker-hopper": ["guide_limits.grad_ratio"]}
+    assert pinned.fingerprints == {pair: {"f1": 6} for pair in FOUR}
+    path = write_preregistration(c, tmp_path / "p.toml", "paper", list(FOUR))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "pved choose: pved-prior's settings in this code differ from those its screens ran "
+        "under (walker-hopper: guide_limits.grad_ratio); the file pins this code's"
+    ]
+    data = read_file(path)
+    assert data["pairs"]["walker-hopper"]["run_config"] == now["walker-hopper"]
+    assert data["pairs"]["reacher"]["screen_fingerprints"] == {"f1": 6}
+    assert "# pved-prior's settings in this code differ" in path.read_text()

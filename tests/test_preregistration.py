@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -12,16 +13,35 @@ from typing import Any
 import pytest
 
 from pved.errors import PvedError
+from pved.protocol.plan import ProtocolPlan
 from pved.protocol.preregistration import (
     EXPLORATORY,
     PREREGISTERED,
     check_gate,
+    evaluation_configs,
     gated_methods,
     mark_summary,
+    method_settings,
     write_record,
 )
+from pved.spec import toml_value
 
 T0 = 1_767_225_600  # 2026-01-01T00:00:00Z: when the file is committed
+ALIGN = ["pved-align", "ppo"]
+
+
+def run_config(pair: str = "reacher", beta: float = 0.1, init: int = 2) -> dict[str, Any]:
+    """The settings this code gives pved-align's paper evaluation runs on ``pair``."""
+    chosen = {"beta": beta, "init": init, "protocol": "q", "budget": "quick", "tuning_seeds": [1]}
+    plan = ProtocolPlan([pair], ALIGN, "paper", Path("unused"), {pair: {"pved-align": chosen}})
+    baseline, configs = evaluation_configs(plan, pair, "pved-align")
+    return method_settings(configs[0], baseline)
+
+
+def table(values: dict[str, Any]) -> str:
+    return "".join(f"{toml_value({k: v})[2:-2]}\n" for k, v in values.items())
+
+
 REGISTERED = """\
 method = "pved-align"
 budget = "paper"
@@ -36,8 +56,8 @@ shaping_form = "align"
 [pairs.reacher]
 beta = 0.1
 init = 2
-"""
-ALIGN = ["pved-align", "ppo"]
+[pairs.reacher.run_config]
+""" + table(run_config())
 
 
 def git(repo: Path, *args: str, when: int = T0) -> None:
@@ -137,8 +157,8 @@ def test_an_invalid_file_is_refused_in_one_line(
     else:
         key = change.split(" ")[0].split("\n")[0]
         lines = [ln for ln in REGISTERED.splitlines() if not ln.startswith(key.split("=")[0])]
-        if key.startswith("[pairs"):
-            lines = REGISTERED.replace("[pairs.reacher]", change).splitlines()
+        if key.startswith("[pairs"):  # its run_config's table too
+            lines = REGISTERED.replace("[pairs.reacher", change.rstrip("]")).splitlines()
         elif key == "[settings]":
             lines = REGISTERED.replace('[settings]\nmodel = "pved"\nshaping_form = "align"', change)
             lines = lines.splitlines()
@@ -156,6 +176,54 @@ def test_an_invalid_file_is_refused_in_one_line(
     # --exploratory runs the method anyway, labelled, and says why
     state = gate(tmp_path / "out", [registered], exploratory=True).status["pved-align"]
     assert state["status"] == EXPLORATORY and message.split(" ")[0] in state["why"]
+
+
+def test_the_file_pins_the_settings_the_code_gives_the_runs() -> None:
+    # the guide's code-level settings, beyond its recipe, and nothing that is the run's
+    # identity, its PPO (the baseline's too) or its inputs
+    pinned = run_config()
+    assert {"align_anneal", "guide_limits", "shaping_form", "source_end"} <= set(pinned)
+    assert {"grad_ratio", "d_gate"} <= set(pinned["guide_limits"])
+    assert not {"beta", "model", "bank", "ppo", "pair", "method", "stage"} & set(pinned)
+    # per pair: each pair's own (its bank's time base, its gate's score, ...)
+    assert run_config("walker-hopper")["shaping_form"] == "align"
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            lambda text: re.sub(r"(?m)^align_anneal = .*$", "align_anneal = 0.123", text),
+            r"pairs\.reacher\.run_config\.align_anneal is 0\.123, but this code gives "
+            r"pved-align's evaluation runs 0\.\d",
+        ),
+        (
+            lambda text: re.sub(r"grad_ratio = [0-9.e+-]+", "grad_ratio = 7.0", text),
+            r"run_config\.guide_limits\.grad_ratio is 7\.0, but this code gives",
+        ),
+        (
+            lambda text: re.sub(r"(?m)^guide_limits = .*\n", "", text),
+            r"run_config\.guide_limits is none, but this code gives pved-align's evaluation "
+            r"runs \{'grad_ratio'",
+        ),
+        (lambda text: text + "later_knob = 1\n", r"run_config\.later_knob is 1, but .* none$"),
+        (
+            lambda text: text.split("[pairs.reacher.run_config]")[0],
+            "pairs.reacher has no 'run_config' table",
+        ),
+    ],
+    ids=["changed", "nested", "missing", "extra", "no-table"],
+)
+def test_a_file_whose_pinned_settings_are_not_the_codes_is_refused(
+    tmp_path: Path, registered: Path, edit: Any, message: str
+) -> None:
+    registered.write_text(edit(REGISTERED))
+    git(registered.parents[2], "commit", "-q", "-am", "change")
+    with pytest.raises(PvedError, match=message) as err:
+        gate(tmp_path / "out", [registered])
+    assert "\n" not in str(err.value)
+    state = gate(tmp_path / "out", [registered], exploratory=True).status["pved-align"]
+    assert state["status"] == EXPLORATORY and "run_config" in state["why"]
 
 
 def evaluation_run(out: Path, when: float) -> Path:

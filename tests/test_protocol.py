@@ -1008,8 +1008,8 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
         for stage in COPYABLE_STAGES
         for run in (out / "runs" / "reacher" / stage).glob("*/seed*/result.json")
     ]
-    assert copy_stage_runs(out, later, ["reacher"]) == len(made) > 0
-    assert copy_stage_runs(out, later, ["reacher"]) == 0  # nothing is copied twice
+    assert copy_stage_runs(out, later, ["reacher"]).copied == len(made) > 0
+    assert copy_stage_runs(out, later, ["reacher"]).copied == 0  # nothing is copied twice
     assert not (later / "runs" / "reacher" / "transfer").exists()
     copied_model = later / "runs" / "reacher" / "model" / "pved" / "seed0"
     assert json.loads((copied_model / "result.json").read_text())["model"] == str(
@@ -1041,7 +1041,7 @@ def test_protocol_smoke_survives_kill_and_resumes(tmp_path: Path) -> None:
     plan = ProtocolPlan(["reacher"], ["ppo"], "smoke", same_steps)
     atomic_write_json(same_steps / PLAN_FILE, plan.describe())
     ppo_made = list((out / "runs" / "reacher" / "transfer" / "ppo").glob("seed*/result.json"))
-    assert copy_stage_runs(out, same_steps, ["reacher"]) == len(made) + len(ppo_made)
+    assert copy_stage_runs(out, same_steps, ["reacher"]).copied == len(made) + len(ppo_made)
     assert [p.name for p in (same_steps / "runs" / "reacher" / "transfer").iterdir()] == ["ppo"]
     ppo_jobs = [j for j in plan.expand({}) if "/transfer/ppo/" in j.key]
     assert ppo_jobs

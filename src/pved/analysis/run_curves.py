@@ -64,6 +64,25 @@ def _record(path: Path, mtime_ns: int) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def run_record(directory: Path, run: dict[str, Any]) -> dict[str, Any] | None:
+    """``run``'s ``config.json`` (its config and the code that made it) wherever it is
+    kept, as :func:`run_curve` finds the curve: beside its ``metrics.jsonl``, else its
+    ``config`` in ``directory``'s :data:`RECORD_FILE`; None where neither holds one."""
+    path = metrics_file(directory, run)
+    config = path.with_name("config.json") if path is not None else None
+    if config is not None and config.is_file():
+        try:
+            data = json.loads(config.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise PvedError(f"{config}: unreadable or not JSON ({_one_line(exc)})") from exc
+        return data if isinstance(data, dict) else None
+    where = directory / RECORD_FILE
+    record = _record(where, where.stat().st_mtime_ns) if where.is_file() else {}
+    entry = record.get(str(run.get("key")))
+    found = entry.get("config") if isinstance(entry, dict) else None
+    return found if isinstance(found, dict) else None
+
+
 def eval_curve(metrics_path: Path, metric: str) -> tuple[np.ndarray, np.ndarray]:
     """(steps, values) of a run's ``eval/<metric>`` points, one per step
     (:func:`pved.analysis.curves.read_eval_points`); PvedError if unreadable."""

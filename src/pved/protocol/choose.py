@@ -21,7 +21,9 @@ rule, as committed before any screen ran, with the amendment's budget:
 The measures are :func:`pved.analysis.transfer_measures.method_measures`' (the same
 bootstrap as ``pved claims``). The winner's β and initialisation on each pair are its
 screen's own selection (``summary.json``), written unchanged to a pre-registration file
-(:func:`preregistration_text`; checked by :mod:`pved.protocol.preregistration`).
+(:func:`preregistration_text`; checked by :mod:`pved.protocol.preregistration`), with
+the settings this code gives its evaluation runs (:func:`pinned_settings`) and the
+numeric fingerprints of the code its screen runs were made by.
 """
 
 from __future__ import annotations
@@ -29,15 +31,26 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import math
+import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from pved.analysis.judge import AA_REFERENCE, FOUR, Judge, load_pairs, load_summary
+from pved.analysis.run_curves import run_record
 from pved.analysis.transfer_measures import BASELINE, REFERENCES, method_measures
 from pved.config import ProtocolBudget, get_budget
 from pved.errors import PvedError
-from pved.protocol.preregistration import PAPER_STEPS
+from pved.protocol.plan import ProtocolPlan
+from pved.protocol.preregistration import (
+    PAPER_STEPS,
+    RUN_CONFIG,
+    differing_keys,
+    evaluation_configs,
+    method_settings,
+)
+from pved.provenance import UNKNOWN, count_fingerprints, run_fingerprint
 from pved.record_paths import record_path
 from pved.runs import atomic_write_bytes
 from pved.spec import toml_value
@@ -57,6 +70,8 @@ class Standing:
             "inside_aa", ...}`` (:func:`method_measures`' cells).
         beta, init: the screen's selection for the candidate on the pair.
         record: the screen's directory, as records name it (repository-relative).
+        directory: the screen's directory as given.
+        runs: the screen's evaluation runs of the candidate (its summary's entries).
     """
 
     pair: str
@@ -66,6 +81,8 @@ class Standing:
     beta: float
     init: int
     record: str
+    directory: Path = Path()
+    runs: tuple[dict[str, Any], ...] = ()
 
     @property
     def behind(self) -> bool:
@@ -121,8 +138,9 @@ class Choice:
 
 
 def _standing(
-    pair: str, method: str, cells: dict[str, Any], entry: dict[str, Any], record: str
+    pair: str, method: str, cells: dict[str, Any], entry: dict[str, Any], directory: Path
 ) -> Standing:
+    record = record_path(directory)
     for measure in ("final", "auc"):
         cell = cells[measure]
         if "reason" in cell:
@@ -135,7 +153,10 @@ def _standing(
     beta, init = entry.get("beta"), entry.get("init")
     if not isinstance(beta, int | float) or not isinstance(init, int):
         raise PvedError(f"{record}: {method} on {pair} has no selected beta and init")
-    return Standing(pair, method, cells["final"], cells["auc"], float(beta), init, record)
+    runs = tuple(entry.get("runs") or ())
+    return Standing(
+        pair, method, cells["final"], cells["auc"], float(beta), init, record, directory, runs
+    )
 
 
 def _check_finished(directory: Path) -> None:
@@ -196,10 +217,9 @@ def choose(directories: Sequence[Path | str], candidates: Sequence[str] = ()) ->
     standings: dict[str, dict[str, Standing]] = {m: {} for m in methods}
     for name, p in pairs.items():
         held = [m for m in methods if (p.methods.get(m) or {}).get("runs")]
-        record = record_path(p.directory)
         for m in held:
             cells = method_measures({name: p}, m, judge)["pairs"][name]
-            standings[m][name] = _standing(name, m, cells, p.methods[m], record)
+            standings[m][name] = _standing(name, m, cells, p.methods[m], p.directory)
     missing = tuple(pair for pair in FOUR if pair not in pairs)
     partial = Choice(standings, missing, None, "")
     return dataclasses.replace(partial, **_decide(partial, methods))
@@ -307,14 +327,11 @@ def check_registered_budget(budget: str) -> ProtocolBudget:
     return b
 
 
-def preregistration_text(
-    c: Choice, budget: str, pairs: Sequence[str], date: datetime.date | None = None
-) -> str:
-    """The pre-registration file (:mod:`pved.protocol.preregistration`) of the winner's
-    evaluation at ``budget`` on ``pairs``: its recipe, and on each pair the β and init its
-    screen chose, unchanged. PvedError where there is no winner, ``budget`` is not one of
-    the paper's length, or a pair was not screened."""
-    b = check_registered_budget(budget)
+def _registered(c: Choice, budget: str, pairs: Sequence[str]) -> str:
+    """The winner, once a file of it at ``budget`` on ``pairs`` can be written; else
+    PvedError (one line): no winner, ``budget`` not one of the paper's length, or a pair
+    not screened."""
+    check_registered_budget(budget)
     if c.winner is None:
         raise PvedError(f"no method to pre-register: {c.why}")
     if not pairs:
@@ -322,8 +339,120 @@ def preregistration_text(
     unknown = [p for p in pairs if p not in c.standings[c.winner]]
     if unknown:
         raise PvedError(f"--pairs: {', '.join(unknown)} not screened")
+    return c.winner
+
+
+@dataclasses.dataclass(frozen=True)
+class Pinned:
+    """What a pre-registration pins of the winner beyond its β and init, pair by pair.
+
+    Attributes:
+        run_config: the settings this code gives its evaluation runs at the registered
+            budget (:func:`pved.protocol.preregistration.method_settings`: the guide's
+            anneal and limits, Eq. 10's entries, ...), which the gate compares with each
+            evaluation run's config.
+        fingerprints: the numeric fingerprints its screen runs were made under, with
+            counts (:mod:`pved.provenance`), for provenance.
+        drift: where its screen runs had other settings: the keys, or that a run records
+            no config (pairs without a difference are left out).
+    """
+
+    run_config: dict[str, dict[str, Any]]
+    fingerprints: dict[str, dict[str, int]]
+    drift: dict[str, list[str]]
+
+    def drift_line(self, method: str) -> str | None:
+        """One line saying where this code's settings are not the screens', or None: a
+        fix made after a screen is allowed, but the file must not hide it."""
+        if not self.drift:
+            return None
+        where = "; ".join(f"{p}: {', '.join(keys)}" for p, keys in self.drift.items())
+        return (
+            f"{method}'s settings in this code differ from those its screens ran under "
+            f"({where}); the file pins this code's"
+        )
+
+
+def _drift(settings: dict[str, Any], baseline: dict[str, Any], records: list[Any]) -> list[str]:
+    """The keys of ``settings`` (this code's) that a screen run's config had otherwise."""
+    keys: set[str] = set()
+    for record in records:
+        config = record.get("config") if isinstance(record, dict) else None
+        if not isinstance(config, dict):
+            keys.add("a run records no config")
+            continue
+        keys.update(differing_keys(method_settings(config, baseline), settings))
+    return sorted(keys)
+
+
+def pinned_settings(c: Choice, budget: str, pairs: Sequence[str]) -> Pinned:
+    """:class:`Pinned` for the winner's evaluation at ``budget`` on ``pairs``: the
+    settings from the config this code's :func:`pved.experiments.transfer_spec.
+    transfer_spec` gives each of its evaluation runs (at the screens' β and init), as a
+    protocol of that budget would make them, and its screen runs' records
+    (``config.json``, or the published record's copy). PvedError (one line) as
+    :func:`preregistration_text`'s."""
+    winner = _registered(c, budget, pairs)
     tuning = list(get_budget(SCREEN_BUDGET).tuning_seeds)
-    recipe = get_method(c.winner)
+    standings = c.standings[winner]
+    fixed = {
+        pair: {
+            winner: {
+                "beta": standings[pair].beta,
+                "init": standings[pair].init,
+                "protocol": standings[pair].record,
+                "budget": SCREEN_BUDGET,
+                "tuning_seeds": tuning,
+                "candidates": [],
+            }
+        }
+        for pair in pairs
+    }
+    run_config: dict[str, dict[str, Any]] = {}
+    fingerprints: dict[str, dict[str, int]] = {}
+    drift: dict[str, list[str]] = {}
+    with tempfile.TemporaryDirectory() as tmp:  # the plan is only read, never run
+        plan = ProtocolPlan(pairs, [winner], budget, Path(tmp), fixed)
+        for pair in pairs:
+            baseline, configs = evaluation_configs(plan, pair, winner)
+            settings = method_settings(configs[0], baseline)
+            if any(method_settings(cfg, baseline) != settings for cfg in configs):
+                raise PvedError(f"{winner} on {pair}: its evaluation runs get unequal settings")
+            s = standings[pair]
+            records = [run_record(s.directory, r) for r in s.runs]
+            run_config[pair] = settings
+            fingerprints[pair] = count_fingerprints(
+                [run_fingerprint(r) if r else UNKNOWN for r in records]
+            )
+            keys = _drift(settings, baseline, records)
+            if keys:
+                drift[pair] = keys
+    return Pinned(run_config, fingerprints, drift)
+
+
+def _table(values: dict[str, Any]) -> list[str]:
+    """``key = value`` lines of a TOML table, keys quoted as the spec writer quotes them."""
+    return [toml_value({k: v})[2:-2] for k, v in values.items()]
+
+
+def preregistration_text(
+    c: Choice,
+    budget: str,
+    pairs: Sequence[str],
+    date: datetime.date | None = None,
+    pinned: Pinned | None = None,
+) -> str:
+    """The pre-registration file (:mod:`pved.protocol.preregistration`) of the winner's
+    evaluation at ``budget`` on ``pairs``: its recipe, and on each pair the β and init its
+    screen chose, unchanged, the fingerprints of its screen runs and the settings this
+    code gives its evaluation runs (``pinned``, default :func:`pinned_settings`).
+    PvedError where there is no winner, ``budget`` is not one of the paper's length, or a
+    pair was not screened."""
+    winner = _registered(c, budget, pairs)
+    b = get_budget(budget)
+    pinned = pinned or pinned_settings(c, budget, pairs)
+    tuning = list(get_budget(SCREEN_BUDGET).tuning_seeds)
+    recipe = get_method(winner)
     settings: dict[str, Any] = {
         "model": recipe.model,
         "shaping_form": recipe.shaping_form,
@@ -332,10 +461,12 @@ def preregistration_text(
     if recipe.anneal is not None:
         settings["anneal"] = recipe.anneal
     day = date or datetime.datetime.now(datetime.UTC).date()
+    drift = pinned.drift_line(winner)
     lines = [
         "# Issue 64's rule applied to the screens (`pved choose`; docs/decisions/protocol.md):",
         f"# {c.why}.",
-        f"method = {toml_value(c.winner)}",
+        *([f"# {drift}."] if drift else []),
+        f"method = {toml_value(winner)}",
         f"budget = {toml_value(budget)}",
         f"date = {day.isoformat()}",
         f"evaluation_seeds = {len(b.evaluation_seeds)}",
@@ -344,35 +475,44 @@ def preregistration_text(
         f"tuning_budget = {toml_value(SCREEN_BUDGET)}",
         "",
         "[settings]",
-        *(f"{k} = {toml_value(v)}" for k, v in settings.items()),
+        *_table(settings),
     ]
     for pair in pairs:
-        s = c.standings[c.winner][pair]
+        s = c.standings[winner][pair]
         lines += ["", f"[pairs.{pair}]", f"beta = {s.beta!r}", f"init = {s.init}"]
         lines.append(f"screen = {toml_value(s.record)}")
+        lines.append(f"screen_fingerprints = {toml_value(pinned.fingerprints[pair])}")
+        lines += ["", f"[pairs.{pair}.{RUN_CONFIG}]", *_table(pinned.run_config[pair])]
     return "\n".join(lines) + "\n"
 
 
 def write_preregistration(c: Choice, path: Path | str, budget: str, pairs: Sequence[str]) -> Path:
     """Write :func:`preregistration_text` to ``path`` atomically, its folder made where
     missing; an existing file is refused (a registration is changed by hand, in a commit
-    that says why)."""
+    that says why). Where this code's settings are not those the screens ran under, says
+    so in one line on stderr (:meth:`Pinned.drift_line`)."""
     path = Path(path)
-    text = preregistration_text(c, budget, pairs)
     if path.exists():
         raise PvedError(f"--write {path}: exists; a pre-registration is never overwritten")
+    pinned = pinned_settings(c, budget, pairs)
+    text = preregistration_text(c, budget, pairs, pinned=pinned)
     atomic_write_bytes(path, text.encode())  # makes its folder (docs/preregistration/)
+    drift = pinned.drift_line(c.winner or "")
+    if drift:
+        print(f"pved choose: {drift}", file=sys.stderr)
     return path
 
 
 __all__ = [
     "SCREEN_BUDGET",
     "Choice",
+    "Pinned",
     "Standing",
     "check_registered_budget",
     "choice_json",
     "choice_table",
     "choose",
+    "pinned_settings",
     "preregistration_text",
     "write_preregistration",
 ]

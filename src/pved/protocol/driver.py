@@ -35,7 +35,12 @@ from pved.protocol.plan import (
 )
 from pved.protocol.preregistration import check_gate, mark_summary, write_record
 from pved.protocol.runner import RunnerReport, check_reachable, resolve_backend, run_jobs
-from pved.provenance import UNKNOWN, count_fingerprints, fingerprint_of_run
+from pved.provenance import (
+    UNKNOWN,
+    count_fingerprints,
+    fingerprint_of_run,
+    pinned_fingerprint,
+)
 from pved.record_paths import record_path
 from pved.rl.ppo import CHECKPOINT_SECONDS
 from pved.run_layout import transfer_run_method
@@ -65,24 +70,54 @@ def _stages_source(source: Path | str, out: Path | str) -> Path:
 COPYABLE_STAGES = ("policy", "pairs", "model", "bank")
 
 
-def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -> int:
+@dataclasses.dataclass(frozen=True)
+class StageCopy:
+    """What :func:`copy_stage_runs` did.
+
+    Attributes:
+        copied: runs copied in.
+        other_code: finished transfer runs it would have copied but did not, made under
+            another numeric fingerprint than this code's, or before runs recorded one.
+        fingerprint: this code's fingerprint (:func:`pved.provenance.pinned_fingerprint`).
+    """
+
+    copied: int
+    other_code: int
+    fingerprint: str | None
+
+    def describe(self, source: Path | str) -> str:
+        """The protocol's line on the copy: how many came, and how many were passed over."""
+        line = f"copied {self.copied} finished runs from {source}"
+        if self.other_code:
+            line += (
+                f"; passed over {self.other_code} finished transfer runs not made under this "
+                f"code's numeric fingerprint ({self.fingerprint}): they are made again"
+            )
+        return line
+
+
+def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -> StageCopy:
     """Copy ``source``'s finished policy, pairs, model and bank runs of ``pairs`` into
-    protocol directory ``out`` where ``out`` has no run of that name yet; returns how
-    many were copied. Where both plans give a pair the same steps per transfer run
-    (``paper`` and ``paper-wide``, say), its finished transfer runs of the methods
-    ``out``'s plan has are copied too.
+    protocol directory ``out`` where ``out`` has no run of that name yet. Where both plans
+    give a pair the same steps per transfer run (``paper`` and ``paper-wide``, say), its
+    finished transfer runs of the methods ``out``'s plan has are copied too, but only
+    those made by code of this code's numeric fingerprint (:mod:`pved.provenance`).
 
     A copied run is used only where its ``config.json`` hash equals the one the plan of
     ``out`` asks for (``Run.is_done``); any other is redone, as an interrupted run
     would be, so a copy can save hours (a locomotion pair's 18 models) but cannot put a
-    run made under other settings into the results. Each run is copied to a temporary
-    name and renamed, so an interrupted copy leaves nothing that looks finished.
-    """
+    run made under other settings into the results. The hash leaves out the code that
+    made a run, so a transfer run's fingerprint is checked too: PPO runs copied from an
+    older protocol beside ``ppo-aa`` runs made now would put two versions of the code
+    into one A/A floor (issue 64: a method is compared with PPO made by the same code).
+    Each run is copied to a temporary name and renamed, so an interrupted copy leaves
+    nothing that looks finished."""
     source, out = _stages_source(source, out), Path(out).resolve()
     source_steps = plan_entry(source, "transfer_steps") or {}
     out_steps = plan_entry(out, "transfer_steps") or {}
     out_methods = set(plan_entry(out, "methods") or ())
-    copied = 0
+    current = pinned_fingerprint()
+    copied = other_code = 0
     for pair in pairs:
         same_steps = pair in out_steps and source_steps.get(pair) == out_steps[pair]
         for stage in (*COPYABLE_STAGES, "transfer") if same_steps else COPYABLE_STAGES:
@@ -94,6 +129,9 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
                 target = out / "runs" / run.relative_to(source / "runs")
                 if target.exists():
                     continue
+                if stage == "transfer" and fingerprint_of_run(run) != current:
+                    other_code += 1
+                    continue
                 partial = target.with_name(f".{target.name}.copying")
                 shutil.rmtree(partial, ignore_errors=True)
                 # checkpoints are not needed by a finished run
@@ -101,7 +139,7 @@ def copy_stage_runs(source: Path | str, out: Path | str, pairs: Sequence[str]) -
                 repoint_result(partial, target)  # its model.pt, not the other protocol's
                 partial.rename(target)
                 copied += 1
-    return copied
+    return StageCopy(copied, other_code, current)
 
 
 def run_protocol(
@@ -200,8 +238,7 @@ def run_protocol(
         plan.out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(plan_path, {**description, "pved_version": __version__})
     for source in sources:
-        copied = copy_stage_runs(source, plan.out, plan.pairs)
-        print(f"copied {copied} finished runs from {source}", file=sys.stderr)
+        print(copy_stage_runs(source, plan.out, plan.pairs).describe(source), file=sys.stderr)
     write_record(plan.out, gate)  # before an evaluation run can start
     report = run_jobs(
         plan,

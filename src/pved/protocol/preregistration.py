@@ -4,14 +4,15 @@
 A method the paper does not define (``pved-align``, ...) is designed here, after looking
 at runs; its paper-budget evaluation is evidence only if what it evaluates was fixed
 before: the method and every hyper-parameter (β and the model initialisation per pair,
-the recipe's form and anneal) chosen on tuning seeds only and written to a file
-committed to git before the first evaluation run starts. ``pved protocol --budget paper
---methods X ... --preregistration FILE`` checks that (:func:`check_gate`, before any
-work): the file is tracked by git, unmodified in the working tree, last changed in a
-commit that is an ancestor of HEAD (``git log HEAD -- FILE``) and, where the protocol's
-evaluation runs of X have started, committed before the first of them started; its
-method, budget, seed counts and recipe are the protocol's; and the selection used is the
-file's (the file's β and init are the selection, or equal to ``--selection-from``'s).
+the recipe's form and anneal, the settings its code gives the runs) chosen on tuning
+seeds only and written to a file committed to git before the first evaluation run
+starts. ``pved protocol --budget paper --methods X ... --preregistration FILE`` checks
+that (:func:`check_gate`, before any work): the file is tracked by git, unmodified in
+the working tree, last changed in a commit that is an ancestor of HEAD (``git log HEAD
+-- FILE``) and, where the protocol's evaluation runs of X have started, committed
+before the first of them started; its method, budget, seed counts, recipe and run
+settings are the protocol's; and the selection used is the file's (the file's β and
+init are the selection, or equal to ``--selection-from``'s).
 Without a valid file the protocol refuses to start, unless ``--exploratory`` is given:
 then X's results are marked ``exploratory`` in ``summary.json``, and ``pved claims`` and
 ``pved scoreboard`` print that label. Paper methods and the references are not gated;
@@ -32,6 +33,19 @@ The file (TOML)::
     [pairs.reacher]
     beta = 0.1
     init = 0
+    screen_fingerprints = { ff960b14702b = 15 }  # provenance: the code of its screen runs
+    [pairs.reacher.run_config]        # what its evaluation runs' configs get, pinned
+    align_anneal = 0.3
+    guide_limits = { grad_ratio = 1.0, ... }
+    ...
+
+``run_config`` pins the settings of the method's code, not only its recipe: the entries
+this code's :func:`pved.experiments.transfer_spec.transfer_spec` puts into each
+evaluation run's config beyond plain PPO's run of the pair and the run's inputs (β, the
+model's and the bank's digests; :func:`method_settings`), e.g. the guide's anneal and
+limits. The gate compares them with the config each evaluation run would get and
+refuses, naming the key, where they differ: a guide changed after its registration is
+not the method registered.
 
 A run's start: the earliest of the time this protocol first let X's evaluation runs
 start (``OUT/preregistration.json``, written before they can) and the ``config.json``
@@ -42,10 +56,12 @@ directory); a protocol older than this check has only the latter, an upper bound
 from __future__ import annotations
 
 import datetime
+import inspect
 import json
 import math
 import subprocess
 import sys
+import tempfile
 import time
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -55,10 +71,12 @@ from typing import Any
 
 from pved.config import get_budget
 from pved.errors import PvedError
+from pved.experiments.transfer_spec import transfer_spec
 from pved.protocol.plan import ProtocolPlan
 from pved.record_paths import record_path
-from pved.runs import atomic_write_json
-from pved.transfer.methods import REFERENCE_METHODS, get_method
+from pved.runs import atomic_write_json, to_jsonable
+from pved.spec import toml_value
+from pved.transfer.methods import NO_TRANSFER, REFERENCE_METHODS, get_method
 
 RECORD = "preregistration.json"
 """A protocol directory's record of its gated methods' status (pre-registered or
@@ -171,6 +189,99 @@ def _check_design(path: Path, data: Mapping[str, Any], pairs: Sequence[str], bud
                 f"--preregistration {path}: settings.{name} = {value!r}, but "
                 f"{data['method']}'s is {have!r}"
             )
+
+
+RUN_CONFIG = "run_config"
+"""A pair's table of the settings its evaluation runs' configs get (:func:`method_settings`)."""
+INPUTS = ("beta", "model", "bank")
+"""A guided run's config entries that are its inputs, registered apart (β per pair) or
+made by the protocol (the model's and the bank's digests)."""
+_SPEC_ARGS = frozenset(inspect.signature(transfer_spec).parameters)
+
+
+def method_settings(config: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str, Any]:
+    """The entries of a transfer run's ``config`` that its method adds to ``baseline``,
+    the config of plain PPO's run of the pair (the learner, the budget and the pair's
+    identity, which the two share), less its :data:`INPUTS`: what the method's code
+    decides beyond β and the model, its recipe's fields among them."""
+    return {k: v for k, v in config.items() if k not in baseline and k not in INPUTS}
+
+
+def _as_written(value: Any) -> Any:
+    """``value`` as a TOML file holds it once written (:func:`pved.spec.toml_value`)."""
+    return tomllib.loads(f"v = {toml_value(json.loads(json.dumps(to_jsonable(value))))}")["v"]
+
+
+def evaluation_configs(
+    plan: ProtocolPlan, pair: str, method: str
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(plain PPO's config, the config of each evaluation run of ``method`` on ``pair``)
+    as this code's :func:`transfer_spec` resolves them for ``plan``, JSON as
+    ``config.json`` holds it. The model and bank are only hashed there, and a protocol
+    makes them after the gate, so an empty stand-in takes their place (their digests are
+    :data:`INPUTS`, never compared)."""
+    plan.expand({})  # the selections made elsewhere (fixed) give the evaluation runs
+    jobs = plan.evaluation_jobs(pair, method)
+    if not jobs:
+        raise PvedError(f"{method} on {pair}: no selection, so no evaluation runs to pin")
+    with tempfile.TemporaryDirectory() as tmp:
+        stand_in = Path(tmp) / "stand-in"
+        stand_in.write_bytes(b"")
+
+        def config(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+            args = {k: v for k, v in kwargs.items() if k in _SPEC_ARGS}
+            args.update({k: stand_in for k in ("model_path", "bank_path") if k in args})
+            resolved = transfer_spec(**args).config
+            return dict(json.loads(json.dumps(to_jsonable(resolved))))
+
+        baseline = config({**jobs[0].kwargs, "method": NO_TRANSFER})
+        return baseline, [config(job.kwargs) for job in jobs]
+
+
+def differing_keys(a: Mapping[str, Any], b: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """The dotted keys (sorted, nested tables entered) whose values differ between ``a``
+    and ``b``, a key that only one has among them."""
+    keys: list[str] = []
+    for key in sorted(set(a) | set(b)):
+        x, y = a.get(key), b.get(key)
+        if isinstance(x, Mapping) and isinstance(y, Mapping):
+            keys += differing_keys(x, y, f"{prefix}{key}.")
+        elif key not in a or key not in b or x != y:
+            keys.append(f"{prefix}{key}")
+    return keys
+
+
+def _at(table: Mapping[str, Any], dotted: str) -> str:
+    value: Any = table
+    for part in dotted.split("."):
+        if not isinstance(value, Mapping) or part not in value:
+            return "none"
+        value = value[part]
+    return repr(value)
+
+
+def _check_run_config(path: Path, data: Mapping[str, Any], plan: ProtocolPlan, method: str) -> None:
+    """Each pair's ``run_config`` is what every evaluation run of ``method`` in ``plan``
+    would get (:func:`method_settings` of :func:`evaluation_configs`); PvedError naming
+    the first key that differs."""
+    for pair in plan.pairs:
+        pinned = data["pairs"][pair].get(RUN_CONFIG)
+        if not isinstance(pinned, dict):
+            raise PvedError(
+                f"--preregistration {path}: pairs.{pair} has no {RUN_CONFIG!r} table (the "
+                "settings its evaluation runs get; `pved choose --write` writes it)"
+            )
+        baseline, configs = evaluation_configs(plan, pair, method)
+        for config in configs:
+            wanted = _as_written(method_settings(config, baseline))
+            differ = differing_keys(pinned, wanted)
+            if differ:
+                key = differ[0]
+                raise PvedError(
+                    f"--preregistration {path}: pairs.{pair}.{RUN_CONFIG}.{key} is "
+                    f"{_at(pinned, key)}, but this code gives {method}'s evaluation runs "
+                    f"{_at(wanted, key)}"
+                )
 
 
 def _selection(
@@ -290,6 +401,7 @@ def check_gate(
             trial = {p: {m: dict(s) for m, s in ms.items()} for p, ms in merged.items()}
             _selection(path, data, pairs, trial)
             plan = ProtocolPlan(pairs, methods, budget, Path(out), trial)
+            _check_run_config(path, data, plan, method)
             started = evaluation_started(plan, method, stages_from)
             if started is not None and when >= started:
                 raise PvedError(
