@@ -237,6 +237,9 @@ def test_a_gate_refuses_episodes_it_cannot_score() -> None:
     with pytest.raises(PvedError, match="cannot resume one that scored by 'reward_per_step'"):
         RewardGate(score="x_position").load_state_dict(old.state_dict())
     assert RewardGate(score="return").info_key is None
+    done = RewardGate(score="completed", episodes=2)
+    done.observe([1.0] * 4, [5.0] * 4, [], 10, [0.0, 0.0, 1.0, 1.0])
+    assert done.start == [0.0, 0.0] and done.recent == [1.0, 1.0]
     assert RewardGate(score="x_position").info_key == "x_position"
 
 
@@ -245,16 +248,23 @@ def test_each_pair_s_gate_scores_by_the_pair_s_own_measure_of_the_task() -> None
     assert scores == {
         "reacher": "is_success",
         "jaco-fetch": "is_success",
-        "walker-hopper": "x_position",
+        # the Hopper's reward has no forward term: nothing to hand the run over to
+        "walker-hopper": "never",
         "humanoid-ant": "x_position",
     }
-    preset = resolve_pair("walker-hopper").preset
+    preset = resolve_pair("humanoid-ant").preset
     assert guide_limits("prior", preset)["gate_score"] == "x_position"
     assert guide_limits("prior", preset)["gate_min_gap"] == 0.5  # the metric's resolution
     assert guide_limits("align", resolve_pair("reacher").preset)["gate_min_gap"] == 0.0
     odd = dataclasses.replace(preset, metric="height_mean")
     with pytest.raises(PvedError, match="cannot score an episode by the metric 'height_mean'"):
         gate_score(odd)
+    # a pair whose target reward lacks the task never hands over, whatever its metric
+    assert gate_score(dataclasses.replace(odd, metric_in_target_reward=False)) == "never"
+    assert gate_score(dataclasses.replace(odd, metric="completion_rate")) == "completed"
+    never = RewardGate(score="never")
+    _feed(never, np.r_[np.zeros(GATE_EPISODES), np.ones(400)])
+    assert never.open and never.info_key is None
 
 
 class _Scored(_Toy):

@@ -148,6 +148,11 @@ class PairPreset:
     # tie goes to the mean final return.
     metric_resolution: float | None = None
     eval_info_keys: tuple[str, ...] = ()
+    # Whether the target's training reward measures the task (False on walker-hopper: the
+    # Hopper's reward has no forward term, paper IV.A). A guide's reward gate hands the
+    # run over to PPO's reward once the task is found only where it does: elsewhere that
+    # reward could not hold what the guide taught (pved.experiments.transfer_spec.gate_score).
+    metric_in_target_reward: bool = True
     # PPO for the pretrained policies, per (agent, task); missing entries use ``policy``.
     policy: PPOConfig = field(default_factory=PPOConfig)
     policy_overrides: tuple[tuple[str, str, PPOConfig], ...] = ()

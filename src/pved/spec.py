@@ -301,6 +301,7 @@ def parse_spec(data: Mapping[str, Any], path: Path) -> PairPreset:
     if isinstance(resolution, str):
         raise metric.fail("resolution", f"must be a number or {NONE!r}")
     info_keys = metric.strings("info_keys", defaults.eval_info_keys)
+    in_reward = metric.get("in_target_reward", bool, defaults.metric_in_target_reward)
     metric.done()
 
     pairing = _config(top.sub("pairing"), PairingConfig)
@@ -352,6 +353,7 @@ def parse_spec(data: Mapping[str, Any], path: Path) -> PairPreset:
             metric=metric_name,
             metric_resolution=None if resolution is None else float(resolution),
             eval_info_keys=info_keys,
+            metric_in_target_reward=in_reward,
             policy=policy_ppo,
             policy_overrides=tuple(overrides),
             policy_keep_best=keep_best,
@@ -449,6 +451,7 @@ def dump_pair(preset: PairPreset) -> str:
             "name": preset.metric,
             "resolution": preset.metric_resolution,
             "info_keys": list(preset.eval_info_keys),
+            "in_target_reward": preset.metric_in_target_reward,
         },
     )
     table("pairing", _changes(preset.pairing, PairingConfig()))

@@ -87,11 +87,22 @@ def gate_score(preset: PairPreset) -> str:
     episode by: the pair's own measure of the task (``preset.metric``) for one episode,
     so that the gate closes once the task is being found and not once the body merely
     lasts longer (docs/decisions/transfer.md, "A guide that cannot take PPO's budget").
-    ``success_rate``: its success; ``return_mean``, ``length_mean``: its return, length;
+    ``success_rate``: its success; ``return_mean``, ``length_mean``, ``completion_rate``:
+    its return, length, whether it ran to the time limit;
     ``<key>_mean`` of an ``info`` entry the pair evaluates by: that entry at its last step
-    (``x_position`` for the locomotion pairs)."""
+    (``x_position`` for humanoid-ant). ``"never"`` where the target's reward does not
+    measure the task (``preset.metric_in_target_reward``, False on walker-hopper): the
+    gate would hand the run to a reward that cannot hold what the guide taught, so the
+    guide acts for as long as its own weight says."""
+    if not preset.metric_in_target_reward:
+        return "never"
     metric = preset.metric
-    named = {"success_rate": "is_success", "return_mean": "return", "length_mean": "length"}
+    named = {
+        "success_rate": "is_success",
+        "return_mean": "return",
+        "length_mean": "length",
+        "completion_rate": "completed",
+    }
     if metric in named:
         return named[metric]
     key = metric.removesuffix("_mean")
@@ -99,7 +110,8 @@ def gate_score(preset: PairPreset) -> str:
         return key
     raise PvedError(
         f"{preset.name}: the reward gate cannot score an episode by the metric {metric!r} "
-        "(success_rate, return_mean, length_mean or <info key>_mean of the metric's info_keys)"
+        "(success_rate, return_mean, length_mean, completion_rate or <info key>_mean of the "
+        "metric's info_keys)"
     )
 
 

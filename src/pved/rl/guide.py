@@ -86,8 +86,9 @@ class ActionGuide(Protocol):
 
 #: The scores a reward gate can judge an episode by, besides an ``info`` entry read at
 #: the episode's last step: its success (``info["is_success"]``), its return on the env's
-#: reward, its length.
-GATE_SCORES = ("is_success", "return", "length")
+#: reward, its length, whether it ran to the time limit without terminating (PPO passes
+#: that as the values); and ``"never"``: a gate that never closes.
+GATE_SCORES = ("is_success", "return", "length", "completed", "never")
 
 
 class RewardGate:
@@ -96,13 +97,14 @@ class RewardGate:
     ``score`` names what an episode is judged by: the pair's own measure of the task
     (``pved.experiments.transfer_spec.gate_score``), ``"is_success"``, ``"return"``,
     ``"length"`` or an ``info`` entry read at the episode's last step (``"x_position"``
-    for the locomotion pairs: how far the body got). None, for a guide whose caller names
-    no measure, scores success where the env reports it and else the reward per step
-    (return / length). That fallback rises when a body merely lasts longer (a Hopper's
-    healthy reward is 0 on its last step, so a 14-step episode earns 13/14 of the
-    healthy term a step and a 24-step one 23/24): on walker-hopper it closed every guided
-    run's gate within 8k steps of 300k, before the task's measure had moved. The task's
-    own measure does not rise by lasting longer without doing the task.
+    on humanoid-ant: how far the body got); ``"never"`` keeps the guide on (where the
+    target's reward does not measure the task, so there is nothing to hand over to).
+    None, for a guide whose caller names no measure, scores success where the env
+    reports it and else the reward per step (return / length). That fallback rises when
+    a body merely lasts longer (a Hopper's healthy reward is 0 on its last step, so a
+    14-step episode earns 13/14 of the healthy term a step and a 24-step one 23/24): on
+    walker-hopper it closed every guided run's gate within 8k steps of 300k, before the
+    task's measure had moved.
 
     The first :data:`GATE_EPISODES` finished episodes are the run's start; once as many
     more have finished, each update compares the last :data:`GATE_EPISODES` with the
@@ -142,7 +144,7 @@ class RewardGate:
     @property
     def info_key(self) -> str | None:
         """The ``info`` entry PPO reads at each finished episode's last step for this gate
-        (None: the gate needs none beyond returns, lengths and successes)."""
+        (None: the gate needs none; PPO then passes whether each episode completed)."""
         return self.score if self.score not in (None, *GATE_SCORES) else None
 
     @property
@@ -159,10 +161,10 @@ class RewardGate:
         values: list[float] | None = None,
     ) -> None:
         """Take one update's finished episodes seen by env step ``step``: their returns,
-        lengths, successes (where the env reports them) and ``values``, the
-        :attr:`info_key` entry at each one's last step; close the gate where the task is
-        found."""
-        if not self.open or not returns:
+        lengths, successes (where the env reports them) and ``values``: the
+        :attr:`info_key` entry at each one's last step, or for ``"completed"`` whether it
+        ran to the time limit; close the gate where the task is found."""
+        if not self.open or not returns or self.score == "never":
             return
         scores = self._scores(returns, lengths, successes, values)
         for score in scores:
@@ -196,7 +198,7 @@ class RewardGate:
             return [float(r) / max(float(n), 1.0) for r, n in zip(returns, lengths, strict=True)]
         self.kind = self.score
         by_name = {"is_success": successes, "return": returns, "length": lengths}
-        got = by_name.get(self.score, values)
+        got = by_name.get(self.score, values)  # "completed" or an info entry
         if got is None or len(got) != len(returns):
             raise PvedError(
                 f"the reward gate scores episodes by {self.score!r}, which the env did not "

@@ -527,7 +527,7 @@ class _Trainer:
                 episodes["length"],
                 episodes["success"],
                 self.global_step,
-                episodes["gate_value"] if gate_key else None,
+                episodes["gate_value"] if gate_key else episodes["completed"],
             )
         self.reward_terms = {k: v / cfg.batch_size for k, v in term_sums.items()}
         return episodes
@@ -547,6 +547,7 @@ class _Trainer:
             "return": [],
             "length": [],
             "success": [],
+            "completed": [],  # ran to the time limit without terminating
             "gate_value": [],
         }
         clip_hits = 0  # steps whose scaled env reward the ±reward_clip bound
@@ -560,6 +561,7 @@ class _Trainer:
                 idx = np.flatnonzero(done)
                 episodes["return"].extend(self.ep_ret[idx].tolist())
                 episodes["length"].extend(self.ep_len[idx].tolist())
+                episodes["completed"].extend((~self.buf_term[t][idx]).astype(float).tolist())
                 success = successes[t]
                 if success is not None:
                     episodes["success"].extend(success[idx].tolist())
