@@ -44,6 +44,7 @@ import torch  # noqa: E402
 
 from pved.spec import PRESETS, get_preset  # noqa: E402
 from pved.envs import env_id, make_batched  # noqa: E402
+from pved.experiments.transfer_spec import guide_limits, set_guide_gate  # noqa: E402
 from pved.envs.base import BatchedEnv  # noqa: E402
 from pved.models import ModelDims, build_model  # noqa: E402
 from pved.pretrained import pretrained_policy_path  # noqa: E402
@@ -165,6 +166,8 @@ def main() -> None:
                 shaped_env = ShapedBatchedEnv(
                     inner, shaping_for(pair, inner, bank, form), preset.bank_match_keys
                 )
+                if shaped_env.action_guide is not None:  # its reward gate as a run's
+                    set_guide_gate(shaped_env.action_guide, guide_limits(form, preset))
                 shapeds[form].append(ppo_rate(shaped_env, config))
         plain = statistics.median(plains)
         shaped = {f: statistics.median(r) for f, r in shapeds.items()}

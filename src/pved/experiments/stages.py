@@ -35,7 +35,7 @@ from pved.envs import BatchedEnv, make_batched
 from pved.envs.registry import get_entry
 from pved.errors import OptionError, PvedError
 from pved.experiments.sources import check_one_source, open_recorded, recorded_episodes
-from pved.experiments.transfer_spec import TransferSpec, transfer_spec
+from pved.experiments.transfer_spec import TransferSpec, set_guide_gate, transfer_spec
 from pved.models import build_model  # noqa: F401  (re-exported for notebooks)
 from pved.models.registry import load_model, save_model
 from pved.models.train import COLLAPSE_NATS, shared_subspace_collapsed
@@ -735,9 +735,7 @@ def _training_env(spec: TransferSpec, method: str) -> BatchedEnv:
     )
     shaped = ShapedBatchedEnv(env, shaping, pair.preset.bank_match_keys)
     if shaped.action_guide is not None:  # PPO's reward gate scores episodes by the task
-        limits = spec.config["guide_limits"]
-        shaped.action_guide.gate_score = limits["gate_score"]
-        shaped.action_guide.gate_min_gap = limits["gate_min_gap"]
+        set_guide_gate(shaped.action_guide, spec.config["guide_limits"])
     if isinstance(shaped.action_guide, AlignGuide):  # its D gate reads the model's pairs
         pairs = load_dataset(model_dataset_path(pair, model))
         shaped.action_guide.d_limit = matched_distance_limit(model, *pairs.model_inputs())

@@ -138,6 +138,14 @@ def guide_limits(form: str, preset: PairPreset) -> dict[str, Any]:
     return limits
 
 
+def set_guide_gate(guide: Any, limits: dict[str, Any]) -> None:
+    """Give a guide (``ShapedBatchedEnv.action_guide``) its reward gate's score and least
+    rise from a run's ``guide_limits`` (:func:`guide_limits`): PPO builds the gate from
+    them (``pved.rl.guide.RewardGate``)."""
+    guide.gate_score = limits["gate_score"]
+    guide.gate_min_gap = limits["gate_min_gap"]
+
+
 def transfer_spec(
     pair: str | Path | Pair,
     method: str = "pved",
