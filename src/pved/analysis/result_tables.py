@@ -31,7 +31,7 @@ from pved.analysis.judge import (
     PairSummary,
     load_pairs,
 )
-from pved.analysis.power import power_rows, power_table
+from pved.analysis.power import RUNS, SOURCES, power_rows, power_table
 from pved.analysis.scoreboard import AHEAD, load_merged, pair_row
 from pved.analysis.transfer_measures import INSIDE_AA, method_measures
 from pved.errors import PvedError
@@ -613,12 +613,18 @@ def power(rec: Records, page: str, *inputs: str) -> str:
     """The gain over PPO the two-level verdicts find at 80% power, by source count, from
     the pilot runs of ``inputs`` (:mod:`pved.analysis.power`): ``DIR`` takes every shaped
     method of the record as a pilot, ``METHOD=DIR`` that one (as ``pved scoreboard``
-    reads its inputs; PPO's runs come from DIR either way). A row costs a few seconds of
-    simulation."""
+    reads its inputs; PPO's runs come from DIR either way). A first input ``runs=N``
+    sets the runs a method (default :data:`RUNS`, paper-45's; the ``paper`` budget's
+    15 on walker-hopper and humanoid-ant), split among the source counts of
+    :data:`SOURCES` that divide it. A row costs a few seconds of simulation."""
+    runs = RUNS
+    if inputs and inputs[0].startswith("runs="):
+        runs, inputs = int(inputs[0].removeprefix("runs=")), inputs[1:]
+    sources = [k for k in SOURCES if runs % k == 0]
     rows = []
     for method, _, directory in (i.rpartition("=") for i in inputs):
         pairs = load_pairs([rec.path(directory)])
-        rows += power_rows(pairs, methods=[method] if method else None)
+        rows += power_rows(pairs, runs, sources, methods=[method] if method else None)
     return power_table(rows)
 
 
