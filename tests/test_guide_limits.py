@@ -236,6 +236,10 @@ def test_a_gate_refuses_episodes_it_cannot_score() -> None:
     old.observe([1.0], [5.0], [], 10)
     with pytest.raises(PvedError, match="cannot resume one that scored by 'reward_per_step'"):
         RewardGate(score="x_position").load_state_dict(old.state_dict())
+    scored = RewardGate(score="x_position")
+    scored.observe([1.0], [5.0], [], 10, [0.2])
+    with pytest.raises(PvedError, match="scoring by None cannot resume one that scored by 'x_"):
+        RewardGate().load_state_dict(scored.state_dict())
     assert RewardGate(score="return").info_key is None
     done = RewardGate(score="completed", episodes=2)
     done.observe([1.0] * 4, [5.0] * 4, [], 10, [0.0, 0.0, 1.0, 1.0])

@@ -227,7 +227,8 @@ class RewardGate:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        if self.score is not None and state["kind"] not in (None, self.score):
+        fits = (self.score,) if self.score is not None else ("success", "reward_per_step")
+        if state["kind"] not in (None, *fits):
             raise PvedError(
                 f"a reward gate scoring by {self.score!r} cannot resume one that scored by "
                 f"{state['kind']!r}"
