@@ -123,3 +123,22 @@ def test_claims_warn_on_parts_whose_methods_were_made_by_other_code(
     assert "- Warning: reacher: pved and gupta2017" in claims_markdown(result)
     code, out, _ = run_cli(capsys, "claims", root)
     assert code == 0 and "Warning: jaco-fetch: pved and ppo were not made" in out
+
+
+def test_a_run_resumed_under_another_fingerprint_is_of_neither(tmp_path: Path) -> None:
+    from pved.provenance import fingerprint_of_run, run_fingerprint
+    from pved.runs import Run
+
+    run = Run(tmp_path / "run", {"c": 1})
+    run.start()
+    record = json.loads((run.path / "config.json").read_text())
+    now = record["fingerprint"]
+    assert fingerprint_of_run(run.path) == now  # started once
+    Run(tmp_path / "run", {"c": 1}).start()  # resumed under the same code: still one
+    assert fingerprint_of_run(run.path) == now
+    # resumed under the same code after a start under another, or before fingerprints
+    again = json.loads((run.path / "config.json").read_text())
+    again["previous_starts"][0]["fingerprint"] = "0ld0ld0ld0ld"
+    assert run_fingerprint(again) == f"mixed: 0ld0ld0ld0ld + {now}"
+    again["previous_starts"][0]["fingerprint"] = None
+    assert run_fingerprint(again) == f"mixed: {UNKNOWN} + {now}"

@@ -136,9 +136,19 @@ def record_fields() -> dict[str, Any]:
 
 def run_fingerprint(config_record: Mapping[str, Any]) -> str:
     """The fingerprint a run's ``config.json`` records, or :data:`UNKNOWN` (a run made
-    before fingerprints)."""
-    value = config_record.get("fingerprint")
-    return value if isinstance(value, str) and value else UNKNOWN
+    before fingerprints). A run resumed under another fingerprint than it started under
+    (its ``previous_starts``, :meth:`pved.runs.Run.start`) was made by two codes' arithmetic:
+    ``"mixed: A + B"``, which equals no code's, so such a run is not taken for the
+    latest start's code (nor copied as made by it)."""
+
+    def one(record: Any) -> str:
+        value = record.get("fingerprint") if isinstance(record, Mapping) else None
+        return value if isinstance(value, str) and value else UNKNOWN
+
+    earlier = config_record.get("previous_starts")
+    starts = [*(earlier if isinstance(earlier, list) else []), config_record]
+    seen = list(dict.fromkeys(one(r) for r in starts))
+    return seen[0] if len(seen) == 1 else "mixed: " + " + ".join(seen)
 
 
 def fingerprint_of_run(run_dir: Path) -> str:
