@@ -22,7 +22,12 @@ from pved.protocol.choose import (
     write_preregistration,
 )
 from pved.protocol.plan import ProtocolPlan
-from pved.protocol.preregistration import _check_design, _check_run_config, read_file
+from pved.protocol.preregistration import (
+    _check_design,
+    _check_run_config,
+    code_commit,
+    read_file,
+)
 
 PPO = np.linspace(0.0, 0.5, len(CURVE_STEPS))
 #: Each screen's selection, different on every pair, so a file that wrote one pair's
@@ -183,6 +188,8 @@ def test_the_file_registers_each_screens_choice_and_the_protocol_reads_it_back(
     _check_design(path, data, ["reacher", "jaco-fetch"], "paper-wide")  # raises if not
     assert data["method"] == "pved-prior" and data["tuning_budget"] == "screen-auc"
     assert data["evaluation_seeds"] == 27 and data["source_policies"] == 3
+    # the commit of the code that wrote it, which the gate compares the guide's code with
+    assert data["code_commit"] == code_commit() and len(data["code_commit"]) == 40
     for pair in ("reacher", "jaco-fetch"):
         assert (data["pairs"][pair]["beta"], data["pairs"][pair]["init"]) == (
             BETA[pair],
@@ -228,7 +235,9 @@ def test_the_file_says_where_the_code_gives_other_settings_than_the_screens_ran_
     # every screen run records this code's settings under fingerprint "f1", but
     # walker-hopper's were made before a fix to the guide's limits
     for directory, pair in zip(dirs, FOUR, strict=True):
-        settings = json.loads(json.dumps(now[pair]))
+        # a transfer run's config: its model's config is the model run's
+        settings = {k: v for k, v in now[pair].items() if k != "model_config"}
+        settings = json.loads(json.dumps(settings))
         if pair == "walker-hopper":
             settings["guide_limits"]["grad_ratio"] = 99.0
         for run in (directory / "runs" / pair / "transfer").glob("*/seed*"):

@@ -13,15 +13,15 @@ from typing import Any
 import pytest
 
 from pved.errors import PvedError
+from pved.protocol import preregistration
 from pved.protocol.plan import ProtocolPlan
 from pved.protocol.preregistration import (
     EXPLORATORY,
     PREREGISTERED,
     check_gate,
-    evaluation_configs,
+    evaluation_settings,
     gated_methods,
     mark_summary,
-    method_settings,
     write_record,
 )
 from pved.spec import toml_value
@@ -34,8 +34,7 @@ def run_config(pair: str = "reacher", beta: float = 0.1, init: int = 2) -> dict[
     """The settings this code gives pved-align's paper evaluation runs on ``pair``."""
     chosen = {"beta": beta, "init": init, "protocol": "q", "budget": "quick", "tuning_seeds": [1]}
     plan = ProtocolPlan([pair], ALIGN, "paper", Path("unused"), {pair: {"pved-align": chosen}})
-    baseline, configs = evaluation_configs(plan, pair, "pved-align")
-    return method_settings(configs[0], baseline)
+    return evaluation_settings(plan, pair, "pved-align")[0]
 
 
 def table(values: dict[str, Any]) -> str:
@@ -50,6 +49,7 @@ evaluation_seeds = 5
 source_policies = 3
 tuning_seeds = [2000, 4000, 6000]
 tuning_budget = "quick"
+code_commit = "CODE"
 [settings]
 model = "pved"
 shaping_form = "align"
@@ -74,13 +74,20 @@ def git(repo: Path, *args: str, when: int = T0) -> None:
 
 
 @pytest.fixture
-def registered(tmp_path: Path) -> Path:
-    """A git repository whose docs/preregistration/align.toml is committed at T0."""
+def registered(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A git repository whose docs/preregistration/align.toml is committed at T0, after
+    the commit of the code it registers (src/pved/, the running code's checkout here)."""
     repo = tmp_path / "repo"
     (repo / "docs/preregistration").mkdir(parents=True)
     git(repo, "init", "-q")
+    for folder in ("transfer", "rl", "models", "analysis"):
+        (repo / "src/pved" / folder).mkdir(parents=True)
+        (repo / "src/pved" / folder / "code.py").write_text("x = 1\n")
+    git(repo, "add", "src")
+    git(repo, "commit", "-q", "-m", "the guide's code", when=T0 - 60)
+    monkeypatch.setattr(preregistration, "PACKAGE", repo / "src/pved")
     path = repo / "docs/preregistration/align.toml"
-    path.write_text(REGISTERED)
+    path.write_text(REGISTERED.replace("CODE", preregistration.code_commit()))
     git(repo, "add", "docs/preregistration/align.toml")
     git(repo, "commit", "-q", "-m", "pre-register pved-align")
     return path
@@ -184,7 +191,13 @@ def test_the_file_pins_the_settings_the_code_gives_the_runs() -> None:
     pinned = run_config()
     assert {"align_anneal", "guide_limits", "shaping_form", "source_end"} <= set(pinned)
     assert {"grad_ratio", "d_gate"} <= set(pinned["guide_limits"])
-    assert not {"beta", "model", "bank", "ppo", "pair", "method", "stage"} & set(pinned)
+    assert not {"beta", "model", "bank", "pair", "method", "stage"} & set(pinned)
+    # PPO's settings and the episode counts, which the baseline shares but a later commit
+    # could change, less the run's seed; and the config of the model it shapes with
+    assert {"ppo", "eval_episodes", "final_eval_episodes", "model_config"} <= set(pinned)
+    assert {"lr", "total_steps", "hidden_sizes"} <= set(pinned["ppo"])
+    assert "seed" not in pinned["ppo"] and "seed" not in pinned["model_config"]
+    assert {"lr", "epochs", "batch_size"} <= set(pinned["model_config"])
     # per pair: each pair's own (its bank's time base, its gate's score, ...)
     assert run_config("walker-hopper")["shaping_form"] == "align"
 
@@ -211,8 +224,20 @@ def test_the_file_pins_the_settings_the_code_gives_the_runs() -> None:
             lambda text: text.split("[pairs.reacher.run_config]")[0],
             "pairs.reacher has no 'run_config' table",
         ),
+        (
+            lambda text: re.sub(r"(?m)^(ppo = .*)\blr = [0-9.e+-]+", r"\1lr = 0.5", text),
+            r"run_config\.ppo\.lr is 0\.5, but this code gives pved-align's evaluation runs",
+        ),
+        (
+            lambda text: re.sub(r"(?m)^final_eval_episodes = \d+", "final_eval_episodes = 7", text),
+            r"run_config\.final_eval_episodes is 7, but this code gives",
+        ),
+        (
+            lambda text: re.sub(r"(?m)^(model_config = .*)\bepochs = \d+", r"\1epochs = 3", text),
+            r"run_config\.model_config\.epochs is 3, but this code gives",
+        ),
     ],
-    ids=["changed", "nested", "missing", "extra", "no-table"],
+    ids=["changed", "nested", "missing", "extra", "no-table", "ppo", "episodes", "model"],
 )
 def test_a_file_whose_pinned_settings_are_not_the_codes_is_refused(
     tmp_path: Path, registered: Path, edit: Any, message: str
@@ -224,6 +249,50 @@ def test_a_file_whose_pinned_settings_are_not_the_codes_is_refused(
     assert "\n" not in str(err.value)
     state = gate(tmp_path / "out", [registered], exploratory=True).status["pved-align"]
     assert state["status"] == EXPLORATORY and "run_config" in state["why"]
+
+
+def test_the_guides_code_must_be_the_registered_commits(
+    tmp_path: Path, registered: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    repo = registered.parents[2]
+    out = tmp_path / "out"
+    assert gate(out, [registered]).status["pved-align"]["status"] == PREREGISTERED
+    # code beyond the guide's may change
+    (repo / "src/pved/analysis/code.py").write_text("x = 2\n")
+    assert gate(out, [registered]).status["pved-align"]["status"] == PREREGISTERED
+    # a change to the guide's code, its settings the same: in the working tree, committed
+    # after the registration, or a new file
+    guide = repo / "src/pved/rl/code.py"
+    guide.write_text("x = 2\n")
+    with pytest.raises(PvedError, match=r"src/pved/rl/code\.py differs from code_commit") as err:
+        gate(out, [registered])
+    assert "\n" not in str(err.value)
+    git(repo, "commit", "-q", "-am", "a later fix")
+    with pytest.raises(PvedError, match=r"src/pved/rl/code\.py differs from code_commit"):
+        gate(out, [registered])
+    state = gate(out, [registered], exploratory=True).status["pved-align"]
+    assert state["status"] == EXPLORATORY and "differs from code_commit" in state["why"]
+    guide.write_text("x = 1\n")
+    git(repo, "commit", "-q", "-am", "undone")
+    assert gate(out, [registered]).status["pved-align"]["status"] == PREREGISTERED
+    (repo / "src/pved/models/new.py").write_text("y = 1\n")
+    with pytest.raises(PvedError, match=r"src/pved/models/new\.py differs"):
+        gate(out, [registered])
+    (repo / "src/pved/models/new.py").unlink()
+    # where git cannot say (code run from no git checkout), the gate refuses
+    (tmp_path / "installed/pved").mkdir(parents=True)
+    monkeypatch.setattr(preregistration, "PACKAGE", tmp_path / "installed/pved")
+    with pytest.raises(PvedError, match="cannot compare the code with code_commit") as err:
+        gate(out, [registered])
+    assert "\n" not in str(err.value)
+
+
+def test_a_file_without_the_code_commit_is_refused(tmp_path: Path, registered: Path) -> None:
+    text = registered.read_text()
+    registered.write_text(re.sub(r"(?m)^code_commit = .*\n", "", text))
+    git(registered.parents[2], "commit", "-q", "-am", "no commit")
+    with pytest.raises(PvedError, match="no 'code_commit' of the right type"):
+        gate(tmp_path / "out", [registered])
 
 
 def evaluation_run(out: Path, when: float) -> Path:

@@ -22,8 +22,9 @@ The measures are :func:`pved.analysis.transfer_measures.method_measures`' (the s
 bootstrap as ``pved claims``). The winner's β and initialisation on each pair are its
 screen's own selection (``summary.json``), written unchanged to a pre-registration file
 (:func:`preregistration_text`; checked by :mod:`pved.protocol.preregistration`), with
-the settings this code gives its evaluation runs (:func:`pinned_settings`) and the
-numeric fingerprints of the code its screen runs were made by.
+the settings this code gives its evaluation runs (:func:`pinned_settings`), the commit
+of the code it ran from and the numeric fingerprints of the code its screen runs were
+made by.
 """
 
 from __future__ import annotations
@@ -44,10 +45,13 @@ from pved.config import ProtocolBudget, get_budget
 from pved.errors import PvedError
 from pved.protocol.plan import ProtocolPlan
 from pved.protocol.preregistration import (
+    CODE_COMMIT,
     PAPER_STEPS,
     RUN_CONFIG,
+    code_commit,
     differing_keys,
     evaluation_configs,
+    evaluation_settings,
     method_settings,
 )
 from pved.provenance import UNKNOWN, count_fingerprints, run_fingerprint
@@ -348,9 +352,9 @@ class Pinned:
 
     Attributes:
         run_config: the settings this code gives its evaluation runs at the registered
-            budget (:func:`pved.protocol.preregistration.method_settings`: the guide's
-            anneal and limits, Eq. 10's entries, ...), which the gate compares with each
-            evaluation run's config.
+            budget (:func:`pved.protocol.preregistration.evaluation_settings`: the
+            guide's anneal and limits, Eq. 10's entries, PPO's, the model's config...),
+            which the gate compares with each evaluation run's.
         fingerprints: the numeric fingerprints its screen runs were made under, with
             counts (:mod:`pved.provenance`), for provenance.
         drift: where its screen runs had other settings: the keys, or that a run records
@@ -414,17 +418,18 @@ def pinned_settings(c: Choice, budget: str, pairs: Sequence[str]) -> Pinned:
     with tempfile.TemporaryDirectory() as tmp:  # the plan is only read, never run
         plan = ProtocolPlan(pairs, [winner], budget, Path(tmp), fixed)
         for pair in pairs:
-            baseline, configs = evaluation_configs(plan, pair, winner)
-            settings = method_settings(configs[0], baseline)
-            if any(method_settings(cfg, baseline) != settings for cfg in configs):
+            every = evaluation_settings(plan, pair, winner)
+            if any(settings != every[0] for settings in every):
                 raise PvedError(f"{winner} on {pair}: its evaluation runs get unequal settings")
             s = standings[pair]
             records = [run_record(s.directory, r) for r in s.runs]
-            run_config[pair] = settings
+            run_config[pair] = every[0]
             fingerprints[pair] = count_fingerprints(
                 [run_fingerprint(r) if r else UNKNOWN for r in records]
             )
-            keys = _drift(settings, baseline, records)
+            # the screens ran at another budget: only what the method adds is compared
+            baseline, configs = evaluation_configs(plan, pair, winner)
+            keys = _drift(method_settings(configs[0], baseline), baseline, records)
             if keys:
                 drift[pair] = keys
     return Pinned(run_config, fingerprints, drift)
@@ -441,13 +446,16 @@ def preregistration_text(
     pairs: Sequence[str],
     date: datetime.date | None = None,
     pinned: Pinned | None = None,
+    commit: str | None = None,
 ) -> str:
     """The pre-registration file (:mod:`pved.protocol.preregistration`) of the winner's
     evaluation at ``budget`` on ``pairs``: its recipe, and on each pair the β and init its
     screen chose, unchanged, the fingerprints of its screen runs and the settings this
-    code gives its evaluation runs (``pinned``, default :func:`pinned_settings`).
-    PvedError where there is no winner, ``budget`` is not one of the paper's length, or a
-    pair was not screened."""
+    code gives its evaluation runs (``pinned``, default :func:`pinned_settings`), and the
+    commit of the code it ran from (``commit``, default HEAD of this code's checkout;
+    the gate refuses where the guide's code differs from it). PvedError where there is no
+    winner, ``budget`` is not one of the paper's length, a pair was not screened, or git
+    cannot say the commit."""
     winner = _registered(c, budget, pairs)
     b = get_budget(budget)
     pinned = pinned or pinned_settings(c, budget, pairs)
@@ -473,6 +481,7 @@ def preregistration_text(
         f"source_policies = {b.source_policies}",
         f"tuning_seeds = {toml_value(tuning)}",
         f"tuning_budget = {toml_value(SCREEN_BUDGET)}",
+        f"{CODE_COMMIT} = {toml_value(commit or code_commit())}",
         "",
         "[settings]",
         *_table(settings),

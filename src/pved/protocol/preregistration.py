@@ -27,6 +27,7 @@ The file (TOML)::
     source_policies = 3
     tuning_seeds = [2000, 4000, 6000] # where β and init were chosen (no evaluation seed)
     tuning_budget = "quick"           # the budget of those tuning runs
+    code_commit = "3a4db49..."        # the commit `pved choose --write` ran from
     [settings]                        # the recipe (pved.transfer.methods.Method fields)
     model = "pved"
     shaping_form = "align"
@@ -37,15 +38,21 @@ The file (TOML)::
     [pairs.reacher.run_config]        # what its evaluation runs' configs get, pinned
     align_anneal = 0.3
     guide_limits = { grad_ratio = 1.0, ... }
+    ppo = { lr = 0.0003, ... }
+    model_config = { epochs = 100, ... }
     ...
 
-``run_config`` pins the settings of the method's code, not only its recipe: the entries
-this code's :func:`pved.experiments.transfer_spec.transfer_spec` puts into each
-evaluation run's config beyond plain PPO's run of the pair and the run's inputs (β, the
-model's and the bank's digests; :func:`method_settings`), e.g. the guide's anneal and
-limits. The gate compares them with the config each evaluation run would get and
-refuses, naming the key, where they differ: a guide changed after its registration is
-not the method registered.
+``run_config`` pins the settings of the method's code, not only its recipe: the config
+this code's :func:`pved.experiments.transfer_spec.transfer_spec` gives each evaluation
+run, less the run's name and inputs (β, its seed, the model's and the bank's digests;
+:func:`run_settings`): the guide's anneal and limits, PPO's settings, the episode
+counts; and the config of the model it shapes with, which the protocol trains after the
+registration, less its seed (:func:`model_settings`). The gate compares them with what
+each evaluation run would get and refuses, naming the key, where they differ: a guide
+changed after its registration is not the method registered. Nor is one whose code
+changed with its settings the same: the gate refuses where any file under
+``src/pved/{transfer,rl,models}/`` (:data:`GUIDE_CODE`) in the running code's working
+tree differs from ``code_commit``, or git cannot tell (:func:`changed_code`).
 
 A run's start: the earliest of the time this protocol first let X's evaluation runs
 start (``OUT/preregistration.json``, written before they can) and the ``config.json``
@@ -94,6 +101,7 @@ _FIELDS: dict[str, type | tuple[type, ...]] = {
     "source_policies": int,
     "tuning_seeds": list,
     "pairs": dict,
+    "code_commit": str,
 }
 
 
@@ -136,6 +144,45 @@ def committed(path: Path) -> tuple[str, float]:
         raise PvedError(f"--preregistration {path}: in no commit of HEAD's history")
     commit, when = line.split()
     return commit, float(when)
+
+
+def code_commit() -> str:
+    """HEAD of the checkout the running code lies in (:data:`PACKAGE`), which ``pved
+    choose --write`` records; PvedError (one line) outside a git checkout or without git."""
+    return _git(PACKAGE / "__init__.py", "rev-parse", "HEAD")
+
+
+def changed_code(commit: str) -> list[str]:
+    """The files under :data:`GUIDE_CODE` in which the running code's working tree
+    (:data:`PACKAGE`'s checkout: tracked files changed, staged or not, and files not
+    ignored that git does not track) differs from ``commit``; PvedError (one line) where
+    git cannot say, e.g. no git, no checkout, or a commit it does not hold."""
+    where = PACKAGE / "__init__.py"
+    changed = _git(where, "diff", "--name-only", commit, "--", *GUIDE_CODE).splitlines()
+    new = _git(
+        where, "ls-files", "--others", "--exclude-standard", "--full-name", "--", *GUIDE_CODE
+    )
+    return sorted({*changed, *new.splitlines()} - {""})
+
+
+def _check_code(path: Path, data: Mapping[str, Any]) -> None:
+    """The guide's code is the registration's: no file under :data:`GUIDE_CODE` differs
+    from the file's ``code_commit`` (a change that leaves every setting the same still
+    changes the method); PvedError naming the first file that does."""
+    commit = data[CODE_COMMIT]
+    try:
+        changed = changed_code(commit)
+    except PvedError as exc:
+        raise PvedError(
+            f"--preregistration {path}: cannot compare the code with {CODE_COMMIT} "
+            f"{commit[:12]} ({exc})"
+        ) from None
+    if changed:
+        more = f" and {len(changed) - 1} more" if len(changed) > 1 else ""
+        raise PvedError(
+            f"--preregistration {path}: {changed[0]}{more} differs from {CODE_COMMIT} "
+            f"{commit[:12]}, where the method was registered"
+        )
 
 
 def read_file(path: Path) -> dict[str, Any]:
@@ -199,6 +246,31 @@ made by the protocol (the model's and the bank's digests)."""
 _SPEC_ARGS = frozenset(inspect.signature(transfer_spec).parameters)
 
 
+IDENTITY = ("stage", "pair", "method")
+"""A transfer run's config entries that name the run, which the file says elsewhere."""
+SEED = "seed"
+"""The entry of a run's ``ppo`` config and of its model's config that differs run by run
+(the evaluation seed, the model initialisation: registered as ``init``)."""
+GUIDE_CODE = ("transfer", "rl", "models")
+"""The folders of the package (``src/pved/``) whose code makes a guided run: a change to
+any file in them after the registration's commit is a method not registered."""
+CODE_COMMIT = "code_commit"
+"""The file's entry of the commit of the code ``pved choose --write`` ran from."""
+PACKAGE = Path(__file__).resolve().parents[1]
+"""The package whose checkout's working tree is compared with ``code_commit``."""
+
+
+def run_settings(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What a transfer run's ``config`` fixes of its behaviour beyond its inputs: every
+    entry but :data:`IDENTITY` and :data:`INPUTS`, its ``ppo`` less the seed. PPO's
+    learner, the budget's steps and the episode counts are the baseline's too, but a
+    change to them after the registration changes the registered method's runs."""
+    settings = {k: v for k, v in config.items() if k not in INPUTS and k not in IDENTITY}
+    if isinstance(settings.get("ppo"), Mapping):
+        settings["ppo"] = {k: v for k, v in settings["ppo"].items() if k != SEED}
+    return settings
+
+
 def method_settings(config: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str, Any]:
     """The entries of a transfer run's ``config`` that its method adds to ``baseline``,
     the config of plain PPO's run of the pair (the learner, the budget and the pair's
@@ -238,6 +310,39 @@ def evaluation_configs(
         return baseline, [config(job.kwargs) for job in jobs]
 
 
+def model_settings(plan: ProtocolPlan, pair: str, method: str) -> list[dict[str, Any]]:
+    """The config of the model each evaluation run of ``method`` on ``pair`` in ``plan``
+    shapes with, less its seed (the registered init), JSON as ``config.json`` holds it:
+    the model job ``plan`` makes for the run's model file, its config resolved as the
+    model stage resolves it (``preset.model_config(model, seed=, epochs=)``, Table 1's
+    α weights, lr, epochs...). The model is trained inside the protocol, after the
+    registration, so what trains it is the method's as much as its guide is."""
+    made = {job.run_dir / "model.pt": job for job in plan.expand({}) if job.run_dir is not None}
+    preset = plan.resolved[pair].preset
+    configs: list[dict[str, Any]] = []
+    for job in plan.evaluation_jobs(pair, method):
+        model_job = made.get(Path(job.kwargs["model_path"]))
+        if model_job is None:
+            raise PvedError(f"{method} on {pair}: no model job makes {job.kwargs['model_path']}")
+        args = model_job.kwargs
+        resolved = preset.model_config(args["model"], seed=args["seed"], epochs=args["epochs"])
+        config = dict(json.loads(json.dumps(to_jsonable(resolved))))
+        configs.append({k: v for k, v in config.items() if k != SEED})
+    return configs
+
+
+def evaluation_settings(plan: ProtocolPlan, pair: str, method: str) -> list[dict[str, Any]]:
+    """The ``run_config`` each evaluation run of ``method`` on ``pair`` in ``plan`` gets:
+    :func:`run_settings` of its config (:func:`evaluation_configs`) with its model's
+    config (:func:`model_settings`) as ``model_config``, as a TOML file holds it."""
+    _, configs = evaluation_configs(plan, pair, method)
+    models = model_settings(plan, pair, method)
+    return [
+        _as_written({**run_settings(config), "model_config": model})
+        for config, model in zip(configs, models, strict=True)
+    ]
+
+
 def differing_keys(a: Mapping[str, Any], b: Mapping[str, Any], prefix: str = "") -> list[str]:
     """The dotted keys (sorted, nested tables entered) whose values differ between ``a``
     and ``b``, a key that only one has among them."""
@@ -262,8 +367,7 @@ def _at(table: Mapping[str, Any], dotted: str) -> str:
 
 def _check_run_config(path: Path, data: Mapping[str, Any], plan: ProtocolPlan, method: str) -> None:
     """Each pair's ``run_config`` is what every evaluation run of ``method`` in ``plan``
-    would get (:func:`method_settings` of :func:`evaluation_configs`); PvedError naming
-    the first key that differs."""
+    would get (:func:`evaluation_settings`); PvedError naming the first key that differs."""
     for pair in plan.pairs:
         pinned = data["pairs"][pair].get(RUN_CONFIG)
         if not isinstance(pinned, dict):
@@ -271,9 +375,7 @@ def _check_run_config(path: Path, data: Mapping[str, Any], plan: ProtocolPlan, m
                 f"--preregistration {path}: pairs.{pair} has no {RUN_CONFIG!r} table (the "
                 "settings its evaluation runs get; `pved choose --write` writes it)"
             )
-        baseline, configs = evaluation_configs(plan, pair, method)
-        for config in configs:
-            wanted = _as_written(method_settings(config, baseline))
+        for wanted in evaluation_settings(plan, pair, method):
             differ = differing_keys(pinned, wanted)
             if differ:
                 key = differ[0]
@@ -408,6 +510,7 @@ def check_gate(
                     f"--preregistration {path}: committed {_iso(when)} ({commit[:12]}), not "
                     f"before {method}'s first evaluation run started ({_iso(started)})"
                 )
+            _check_code(path, data)
         except PvedError as exc:
             if not exploratory:
                 raise
