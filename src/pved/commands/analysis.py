@@ -2,6 +2,9 @@
 
 Each verb is a handler (``_cmd_<verb>``: the stage it calls, with the parsed options)
 and beside it the function that adds its parser (``add_<verb>``).
+
+Just past 600 lines on purpose: one idea, the analyses' command line, every part of it a
+short handler and its parser; split by verb, each half would be the same idea again.
 """
 
 from __future__ import annotations
