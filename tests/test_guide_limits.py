@@ -301,6 +301,44 @@ def test_ppo_scores_the_gate_by_the_guide_s_entry(tmp_path: Path) -> None:
         train_ppo(_Scored(8, _Pull(0.0), report=False), cfg, None, progress=False)
 
 
+class _Logged(_Toy):
+    """The toy task whose guide's gate scores by ``"completed"``: whether an episode ran to
+    the time limit. It keeps that of each finished episode, in the order PPO meets them
+    (copies in index order at each step): the toy ends an episode early on success, so a
+    gate fed successes would see the complement."""
+
+    def __init__(self, n: int, guide: _Pull) -> None:
+        super().__init__(n, guide)
+        guide.gate_score = "completed"  # type: ignore[attr-defined]
+        self.completed: list[float] = []
+
+    def step(self, actions: np.ndarray):  # type: ignore[no-untyped-def]
+        obs, reward, term, trunc, info = super().step(actions)
+        self.completed.extend((~term[term | trunc]).astype(float).tolist())
+        return obs, reward, term, trunc, info
+
+
+def test_ppo_scores_a_completion_gate_by_the_episodes_that_ran_to_the_time_limit(
+    tmp_path: Path,
+) -> None:
+    # the run below closes a success gate; here successes end episodes early, so the share
+    # that ran to the limit falls as the task is found and the gate stays open
+    cfg = PPOConfig(num_envs=8, steps_per_env=64, minibatch_size=128, epochs=10,
+                    hidden_sizes=(32, 32), activation="tanh", total_steps=24_576,
+                    checkpoint_every=0, seed=1)  # fmt: skip
+    env = _Logged(8, _Pull(0.0))
+    train_ppo(env, cfg, Run(tmp_path / "run", {"c": 1}), progress=False)
+    rows = [r for r in Run(tmp_path / "run", {"c": 1}).read_metrics() if "guide/gate_open" in r]
+    assert {r["guide/gate_open"] for r in rows} == {1.0}
+    done = np.asarray(env.completed)
+    assert len(done) > 4 * GATE_EPISODES
+    # PPO fed the gate each episode's completion, in order: the start is the first 50's,
+    # the recent window the last 50's, and the task being found shows as a fall
+    assert rows[-1]["guide/gate_start"] == pytest.approx(done[:GATE_EPISODES].mean())
+    assert rows[-1]["guide/gate_recent"] == pytest.approx(done[-GATE_EPISODES:].mean())
+    assert rows[-1]["guide/gate_recent"] < rows[-1]["guide/gate_start"] - 0.3
+
+
 def test_ppo_stops_asking_the_guide_once_the_gate_closes(tmp_path: Path) -> None:
     # the toy task's success rises from a few in a hundred to most within the run
     cfg = PPOConfig(num_envs=8, steps_per_env=64, minibatch_size=128, epochs=10,

@@ -20,9 +20,15 @@ from pved.pair import Pair, resolve_pair
 from pved.rl.guide import GATE_EPISODES, GATE_Z, GUIDE_GRAD_RATIO
 from pved.rl.ppo import PPOConfig
 from pved.runs import file_digest, run_file
-from pved.transfer.align_guide import ALIGN_ANNEAL, D_GATE_FACTOR, D_GATE_QUANTILE, D_GATE_ROWS
+from pved.transfer.align_guide import (
+    ALIGN_ANNEAL,
+    D_GATE_FACTOR,
+    D_GATE_QUANTILE,
+    D_GATE_ROWS,
+    AlignGuide,
+)
 from pved.transfer.methods import get_method
-from pved.transfer.prior_guide import check_prior_model
+from pved.transfer.prior_guide import PriorGuide, check_prior_model
 from pved.transfer.shaping import GUIDE_FORMS, check_shaping_action, check_shaping_form
 
 
@@ -138,7 +144,7 @@ def guide_limits(form: str, preset: PairPreset) -> dict[str, Any]:
     return limits
 
 
-def set_guide_gate(guide: Any, limits: dict[str, Any]) -> None:
+def set_guide_gate(guide: AlignGuide | PriorGuide, limits: dict[str, Any]) -> None:
     """Give a guide (``ShapedBatchedEnv.action_guide``) its reward gate's score and least
     rise from a run's ``guide_limits`` (:func:`guide_limits`): PPO builds the gate from
     them (``pved.rl.guide.RewardGate``)."""
