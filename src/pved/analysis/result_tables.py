@@ -104,6 +104,8 @@ SCREENS_64 = (
     ("reacher", "pved-align", "reacher-screen-auc"),
     ("reacher", "pved-prior", "reacher-screen-auc-bar"),
     ("reacher", "pved-align", "reacher-screen-auc-bar"),
+    ("jaco-fetch", "pved-prior", "jaco-fetch-screen-auc"),
+    ("jaco-fetch", "pved-align", "jaco-fetch-screen-auc"),
 )
 """Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
 runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
