@@ -55,6 +55,10 @@ def test_only_transfer_runs_of_this_codes_fingerprint_are_copied(tmp_path: Path)
     assert line.startswith("copied 2 finished runs from reports/reacher-paper-wide; passed ")
     assert "passed over 3 finished transfer runs not made under this code's numeric " in line
     assert f"({now}): they are made again" in line and "\n" not in line
+    # a copy is not yet a run in use: the line says the plan's config decides
+    assert line.endswith(
+        "a copied run whose config is not the one this plan asks for is made again"
+    )
     # the runs passed over are not taken on a second call either, nor counted as copied
     again = copy_stage_runs(source, out, ["reacher"])
     assert (again.copied, again.other_code) == (0, 3)

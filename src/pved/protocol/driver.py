@@ -93,6 +93,8 @@ class StageCopy:
                 f"; passed over {self.other_code} finished transfer runs not made under this "
                 f"code's numeric fingerprint ({self.fingerprint}): they are made again"
             )
+        if self.copied:  # the copy does not know the plan's configs: the runs check them
+            line += "; a copied run whose config is not the one this plan asks for is made again"
         return line
 
 
