@@ -106,6 +106,8 @@ SCREENS_64 = (
     ("reacher", "pved-align", "reacher-screen-auc-bar"),
     ("jaco-fetch", "pved-prior", "jaco-fetch-screen-auc"),
     ("jaco-fetch", "pved-align", "jaco-fetch-screen-auc"),
+    ("walker-hopper", "pved-prior", "walker-hopper-screen-auc-gate"),
+    ("walker-hopper", "pved-align", "walker-hopper-screen-auc-gate"),
 )
 """Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
 runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
