@@ -25,10 +25,13 @@ against the PPO runs checked to be the same).
 
 Beside each pair's standing its A/A check, ppo-aa − ppo on the final score ("inside A/A
 noise" where the method's |difference| is no larger; "no A/A set" without ppo-aa runs),
-and after the goal the method against PPO by the field's transfer measures (AUC,
-jumpstart, steps to PPO's final, final; Holm over the pairs;
-:mod:`pved.analysis.transfer_measures`). A method whose results the protocol marks
-exploratory (evaluated at the paper's budget without a pre-registration) is labelled so.
+and after the goal issue 64's goal (the area under the learning curve ahead on three
+pairs after Holm, the final score behind PPO and the pooled PPO runs on none, at the
+paper's budget: :mod:`pved.analysis.transfer_goal`) with its table of by how much, then
+the method against PPO by the field's transfer measures (AUC, jumpstart, steps to PPO's
+final, final; Holm over the pairs; :mod:`pved.analysis.transfer_measures`). A method
+whose results the protocol marks exploratory (evaluated at the paper's budget without a
+pre-registration) is labelled so.
 
 Only ``summary.json`` files are read, and for the measures off the curves each run's
 ``metrics.jsonl`` or, in a published directory, the committed record of its curves.
@@ -49,6 +52,7 @@ from pved.analysis.judge import (
     check_pair,
     load_summary,
 )
+from pved.analysis.transfer_goal import transfer_goal, transfer_goal_markdown
 from pved.analysis.transfer_measures import (
     DEFINITIONS,
     EXPLORATORY,
@@ -248,12 +252,14 @@ def scoreboard(method: str, dirs: Sequence[str | Path]) -> dict[str, Any]:
         goal["verdict"] = "reached" if reached else "not reached"
         goal["why"] = counts
     budgets = sorted({r["budget"] for r in rows})
+    measures = method_measures(pairs, method)
     return {
         "method": method,
         "budgets": budgets,
         "rows": rows,
         "goal": goal,
-        "transfer_measures": method_measures(pairs, method),
+        "transfer_measures": measures,
+        "transfer_goal": transfer_goal(pairs, method, measures),
     }
 
 
@@ -313,6 +319,8 @@ def scoreboard_markdown(result: dict[str, Any]) -> str:
         )
     goal = result["goal"]
     lines += ["", f"Goal ({goal['needs']}): **{goal['verdict']}**: {goal['why']}."]
+    if "transfer_goal" in result:  # absent from scoreboards written before it
+        lines += ["", transfer_goal_markdown(result["method"], result["transfer_goal"])]
     if "transfer_measures" in result:  # absent from scoreboards written before them
         lines += ["", DEFINITIONS, "", measures_markdown(result["transfer_measures"])]
     return "\n".join(lines) + "\n"

@@ -217,7 +217,8 @@ def aa_cell(measure: str, aa: dict[str, Any] | str, inside: bool | None) -> str:
     return cell + (f"; **{INSIDE_AA}**" if inside else "")
 
 
-def _p(p: float) -> str:
+def p_text(p: float) -> str:
+    """A p-value as the tables print it: 3 decimals, or 1.2e-04 below 0.001."""
     return f"{p:.3f}" if p >= 0.001 else f"{p:.1e}"
 
 
@@ -248,7 +249,7 @@ def measures_markdown(result: dict[str, Any]) -> str:
             diff = f"{_value(measure, c['value'], True)} {_interval(measure, c['ci'])}"
             lines.append(
                 f"| {pair} | {name} | {mine} | {_value(measure, c['ppo_mean'])} | {diff} | "
-                f"{_p(c['p'])} ({_p(c['p_holm'])}) | "
+                f"{p_text(c['p'])} ({p_text(c['p_holm'])}) | "
                 f"{aa_cell(measure, c['aa'], c['inside_aa'])} |"
             )
     return "\n".join(lines)

@@ -422,8 +422,9 @@ def add_scoreboard(v: Verbs) -> None:
         "CIs (two-level bootstrap over source policies and seeds, as `pved claims`), "
         "METHOD - ppo and the steps METHOD takes to reach ppo's final; then whether "
         "METHOD is ahead of ppo on >= 3 of the 4 pairs, behind on none, within half of "
-        "ppo's steps. A pair may come from several protocol DIRs of one budget (a "
-        "screen and the protocol whose stages it reused); METHOD=DIR takes only "
+        "ppo's steps; then issue 64's goal (AUC ahead on >= 3 after Holm, final behind ppo "
+        "or ppo+ppo-aa on none, at the paper's budget) and by how much on each pair. A "
+        "pair may come from several protocol DIRs of one budget; METHOD=DIR takes only "
         "METHOD's runs from DIR.",
     )
     p.add_argument("dirs", nargs="+", metavar="DIR", help="protocol outputs, or METHOD=DIR")
