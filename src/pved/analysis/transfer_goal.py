@@ -15,9 +15,10 @@ of the paper's length (:data:`PAPER_BUDGETS`) with at least :func:`runs_needed` 
 the method and of PPO (issue 64's counts: 45 where runs end near 0 or 1, 15 elsewhere),
 an A/A set (``ppo-aa``) to pool with PPO, and no result marked exploratory (a method
 evaluated without its pre-registration).
-Otherwise the verdict is "not judged" and says which condition is unmet, unless the
-pairs present already put the goal out of reach. Either way the table beside it says by
-how much the method stands on each pair.
+Otherwise the verdict is "not judged" and says which condition is unmet; where the only
+gap is a pair not yet compared, it is "not reached" as soon as the pairs present already
+miss the goal. Either way the table beside it says by how much the method stands on each
+pair.
 
 The numbers are :func:`pved.analysis.transfer_measures.method_measures`' (the two-level
 bootstrap of ``pved claims``); only records are read.
