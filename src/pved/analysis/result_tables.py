@@ -108,6 +108,8 @@ SCREENS_64 = (
     ("jaco-fetch", "pved-align", "jaco-fetch-screen-auc"),
     ("walker-hopper", "pved-prior", "walker-hopper-screen-auc-gate"),
     ("walker-hopper", "pved-align", "walker-hopper-screen-auc-gate"),
+    ("humanoid-ant", "pved-prior", "humanoid-ant-screen-auc"),
+    ("humanoid-ant", "pved-align", "humanoid-ant-screen-auc"),
 )
 """Issue 64's screens at the ``screen`` and ``screen-auc`` budgets (seeds no other budget
 runs): (pair, method, its screen's directory, which holds its ppo and ppo-aa runs too)."""
