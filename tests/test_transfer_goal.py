@@ -162,3 +162,29 @@ def test_the_area_counts_only_where_it_holds_after_holm(tmp_path: Path) -> None:
     measures["pairs"]["reacher"]["auc"].update(p=0.02, p_holm=0.06)
     result = transfer_goal(pairs, "new", measures, reps=REPS)
     assert "reacher" not in result["auc_ahead"] and result["verdict"] == "not reached"
+
+
+def test_the_pooled_interval_follows_the_resampling_seed(tmp_path: Path) -> None:
+    pairs = load_pairs([protocol_dir(tmp_path / "p", four_pairs(AHEAD3), budget="paper")])
+    a, b = (pooled_final(pairs, "new", reps=REPS, seed=s)["reacher"] for s in (0, 1))
+    assert a["value"] == b["value"] and a["ci"] != b["ci"]
+
+
+def test_the_results_page_table_is_the_scoreboards_goal(tmp_path: Path) -> None:
+    """``<!-- pved:table goal-64 METHOD DIR... -->`` prints what ``pved scoreboard``
+    prints (the same verdict and rows) and notes the verdict for the seed check."""
+    from pved.analysis.result_tables import TABLES, Records
+
+    records = tmp_path / "docs" / "protocol"
+    early = dict(AHEAD3, **{"humanoid-ant": (0.8, 0.1)})
+    protocol_dir(records / "a", {k: v for k, v in four_pairs(early).items() if k != "reacher"})
+    protocol_dir(records / "b", {"reacher": four_pairs(early)["reacher"]}, budget="paper-45")
+    rec = Records(tmp_path, reps=REPS, seed=3)
+    table = TABLES["goal-64"](rec, "docs/results.md", "new", "a", "b")
+    pairs = load_pairs([records / "a", records / "b"])
+    measures = method_measures(pairs, "new", Judge(pairs, reps=REPS, seed=3))
+    expected = transfer_goal(pairs, "new", measures, reps=REPS, seed=3)
+    assert expected["verdict"] == "not reached"  # humanoid-ant ends behind
+    assert table == transfer_goal_markdown("new", expected).split("\n", 2)[2]
+    assert table.startswith("Needs: ") and "**not reached**" in table
+    assert list(rec.verdicts.values()) == ["not reached"]

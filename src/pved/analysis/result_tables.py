@@ -33,6 +33,7 @@ from pved.analysis.judge import (
 )
 from pved.analysis.power import RUNS, SOURCES, power_rows, power_table
 from pved.analysis.scoreboard import AHEAD, load_merged, pair_row
+from pved.analysis.transfer_goal import transfer_goal, transfer_goal_markdown
 from pved.analysis.transfer_measures import INSIDE_AA, method_measures
 from pved.errors import PvedError
 
@@ -575,6 +576,18 @@ def screens_64(rec: Records, page: str) -> str:
     return _table(header, rows)
 
 
+def goal_64(rec: Records, page: str, method: str, *directories: str) -> str:
+    """Issue 64's goal for ``method`` over the record ``directories`` (one a pair, or
+    ``METHOD=DIR``), as ``pved scoreboard --method METHOD DIR...`` prints it: the verdict
+    and the table of by how much on each pair (:mod:`pved.analysis.transfer_goal`),
+    without the scoreboard's heading."""
+    pairs, judge = rec.judge(*directories)
+    measures = method_measures(pairs, method, judge)
+    goal = transfer_goal(pairs, method, measures, rec.reps, rec.seed)
+    rec.note(f"issue 64's goal: {method} over {', '.join(directories)}", goal["verdict"])
+    return transfer_goal_markdown(method, goal).split("\n", 2)[2]  # past heading and blank
+
+
 def pair_verdicts(rec: Records, page: str, pair: str) -> str:
     """The parts of the paper's claims on one pair, at ``quick`` and ``paper``."""
     budgets = ("quick", "paper")
@@ -645,6 +658,7 @@ TABLES: dict[str, Callable[..., str]] = {
     "align-paper": align_paper,
     "screens-quick": screens_quick,
     "screens-64": screens_64,
+    "goal-64": goal_64,
     "verdicts": pair_verdicts,
     "finals": finals,
     "power": power,

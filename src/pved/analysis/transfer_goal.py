@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from pved.analysis.judge import AA_REFERENCE, FOUR, REPS, Judge, PairSummary
+from pved.analysis.judge import AA_REFERENCE, FOUR, REPS, SEED, Judge, PairSummary
 from pved.analysis.transfer_measures import BASELINE, FAMILY_ALPHA, p_text
 
 AUC_AHEAD_NEEDED = 3
@@ -62,11 +62,12 @@ def _runs(pair: PairSummary, method: str) -> list[dict[str, Any]]:
 
 
 def pooled_final(
-    pairs: dict[str, PairSummary], method: str, reps: int = REPS
+    pairs: dict[str, PairSummary], method: str, reps: int = REPS, seed: int = SEED
 ) -> dict[str, dict[str, Any]]:
     """Per pair with ``ppo-aa`` runs: ``method`` − (``ppo`` ∪ ``ppo-aa``) of the final
     score, ``{"value", "ci", "p", "runs"}`` (the pooled runs, each key once), or
-    ``{"reason"}``; ``reps``: the bootstrap's resamples (the project's, :data:`REPS`).
+    ``{"reason"}``; ``reps``, ``seed``: the bootstrap's resampling (the project's
+    :data:`REPS` and :data:`SEED`).
     The pairs are copied: the caller's summaries are left as they are."""
     pooled: dict[str, PairSummary] = {}
     for name, p in pairs.items():
@@ -77,7 +78,7 @@ def pooled_final(
             seen.setdefault(str(r.get("key")), r)
         methods = {method: p.methods.get(method) or {}, POOLED: {"runs": list(seen.values())}}
         pooled[name] = dataclasses.replace(p, methods=methods, _cache={})
-    judge = Judge(pooled, reps=reps)
+    judge = Judge(pooled, reps=reps, seed=seed)
     out: dict[str, dict[str, Any]] = {}
     for name in pooled:
         d = judge.difference(name, method, POOLED, "final")
@@ -94,16 +95,20 @@ def _behind(cell: dict[str, Any]) -> bool:
 
 
 def transfer_goal(
-    pairs: dict[str, PairSummary], method: str, measures: dict[str, Any], reps: int = REPS
+    pairs: dict[str, PairSummary],
+    method: str,
+    measures: dict[str, Any],
+    reps: int = REPS,
+    seed: int = SEED,
 ) -> dict[str, Any]:
     """Issue 64's goal for ``method`` over ``pairs`` (see the module's docstring), from
     its transfer ``measures`` (:func:`~pved.analysis.transfer_measures.method_measures`
-    over the same pairs; ``reps``: the pooled comparison's resamples). Returns
+    over the same pairs; ``reps``, ``seed``: the pooled comparison's resampling). Returns
     ``{"needs", "verdict" ("reached", "not reached", "not judged"), "why", "auc_ahead",
     "final_behind", "pooled_behind", "unmet" (the conditions not met), "absent" (pairs
     not compared), "rows"}``; a row per pair of the four gives by how much."""
     cells = measures["pairs"]
-    pooled = pooled_final(pairs, method, reps)
+    pooled = pooled_final(pairs, method, reps, seed)
     rows: list[dict[str, Any]] = []
     unmet: list[str] = []  # the conditions of a judgement: budget, run counts, registration
     absent: list[str] = []  # pairs with no comparison: not run, or no curves to read
