@@ -257,3 +257,37 @@ def test_the_file_says_where_the_code_gives_other_settings_than_the_screens_ran_
     assert data["pairs"]["walker-hopper"]["run_config"] == now["walker-hopper"]
     assert data["pairs"]["reacher"]["screen_fingerprints"] == {"f1": 6}
     assert "# pved-prior's settings in this code differ" in path.read_text()
+
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Issue 64's four screens as committed, and the pre-registrations written from them.
+COMMITTED_SCREENS = (
+    "reacher-screen-auc-bar",
+    "jaco-fetch-screen-auc",
+    "walker-hopper-screen-auc-gate",
+    "humanoid-ant-screen-auc",
+)
+COMMITTED_FILES = {
+    "pved-align-paper-45.toml": ("paper-45", ["reacher", "jaco-fetch"]),
+    "pved-align-paper.toml": ("paper", ["walker-hopper", "humanoid-ant"]),
+}
+
+
+@pytest.mark.slow  # the rule over four real screens (~10 s of bootstrap)
+def test_the_committed_preregistrations_are_the_rules_choice_on_the_committed_screens() -> None:
+    """The files the paper-budget runs read name the method, β and init that the rule
+    finds in the committed screens now: a screen record or the rule changed after the
+    files were written shows here."""
+    c = choose([ROOT / "docs" / "protocol" / d for d in COMMITTED_SCREENS])
+    assert c.winner == "pved-align", c.why
+    for name, (budget, pairs) in COMMITTED_FILES.items():
+        path = ROOT / "docs" / "preregistration" / name
+        data = read_file(path)
+        _check_design(path, data, pairs, budget)  # raises if not
+        assert data["method"] == c.winner and data["budget"] == budget
+        assert sorted(data["pairs"]) == sorted(pairs)
+        for pair in pairs:
+            s = c.standings[c.winner][pair]
+            registered = data["pairs"][pair]
+            assert (registered["beta"], registered["init"]) == (s.beta, s.init), pair
+            assert registered["screen"] == s.record
