@@ -171,8 +171,9 @@ def test_the_pooled_interval_follows_the_resampling_seed(tmp_path: Path) -> None
 
 
 def test_the_results_page_table_is_the_scoreboards_goal(tmp_path: Path) -> None:
-    """``<!-- pved:table goal-64 METHOD DIR... -->`` prints what ``pved scoreboard``
-    prints (the same verdict and rows) and notes the verdict for the seed check."""
+    """``<!-- pved:table goal-64 METHOD DIR... -->`` prints the goal ``pved scoreboard``
+    computes (``transfer_goal`` over the same records and resampling), without its
+    heading, and notes the verdict for the seed check."""
     from pved.analysis.result_tables import TABLES, Records
 
     records = tmp_path / "docs" / "protocol"
